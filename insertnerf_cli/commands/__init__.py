@@ -1,0 +1,9 @@
+"""Click commands, one module each; COMMANDS is what cli.py registers."""
+from .common import user_errors  # noqa: F401  (re-exported for the command modules)
+from .poses import poses
+from .synth import synth
+from .train import train
+from .render import render
+from .eval import eval_command
+
+COMMANDS = [poses, synth, train, render, eval_command]

@@ -1,0 +1,107 @@
+"""The Scene every reader returns: posed images, loaded on demand."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal, Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..cameras import Cameras
+from ..errors import UserError
+
+Layout = Literal["object", "forward"]
+
+
+class SceneError(UserError):
+    """A scene folder that cannot be read; the message is one line meant for the user."""
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Posed images of one scene.
+
+    Attributes:
+        root: the scene folder; every path below lies inside it.
+        cameras: N cameras at the images' full resolution, OpenCV c2w (float64).
+        image_paths: N image files, in camera order.
+        near, far: [N] scene bounds along each camera's z axis, in world units.
+        splits: index lists per split ("train", "val", "test") when the format has them, else {}.
+        layout: "object" for object-centric / 360-degree captures, "forward" for forward-facing ones.
+        format: name of the reader that produced it ("blender", "nerfstudio", "llff", "colmap", "dtu", ...).
+        background: RGB in [0, 1] that transparent pixels are composited on.
+        depth_paths: optional ground-truth depth per view (synthetic scenes), else None.
+        depth_scale: metres-per-unit of the stored depth files (e.g. 1e-3 for uint16 millimetres).
+    """
+
+    root: Path
+    cameras: Cameras
+    image_paths: list[Path]
+    near: Tensor  # [N]
+    far: Tensor  # [N]
+    splits: dict[str, list[int]] = field(default_factory=dict)
+    layout: Layout = "object"
+    format: str = "unknown"
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    depth_paths: list[Path] | None = None
+    depth_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        n = len(self.cameras)
+        if len(self.image_paths) != n or self.near.shape != (n,) or self.far.shape != (n,):
+            raise SceneError(
+                f"{self.root}: {n} cameras but {len(self.image_paths)} images and {tuple(self.near.shape)} bounds")
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def names(self) -> list[str]:
+        """Image file names relative to the scene folder (posix style)."""
+        return [p.relative_to(self.root).as_posix() if p.is_relative_to(self.root) else p.name
+                for p in self.image_paths]
+
+    def split(self, name: str) -> list[int]:
+        """Indices of a split; without one, "test" is every 8th view and "train" the rest (LLFF habit)."""
+        if name in self.splits:
+            return list(self.splits[name])
+        every8 = list(range(0, len(self), 8))
+        if name == "test":
+            return every8
+        if name == "train":
+            return [i for i in range(len(self)) if i not in set(every8)]
+        raise SceneError(f"{self.root}: no split named {name!r}")
+
+    def size_for(self, long_side: int | None) -> tuple[int, int]:
+        """(height, width) with the given long side and the images' aspect ratio (None = full size)."""
+        h, w = self.cameras.height, self.cameras.width
+        if long_side is None or long_side >= max(h, w):
+            return h, w
+        s = long_side / max(h, w)
+        return max(1, round(h * s)), max(1, round(w * s))
+
+    def load_image(self, index: int, height: int | None = None, width: int | None = None) -> np.ndarray:
+        """Image ``index`` as float32 RGB [H, W, 3] in [0, 1], resized to height x width if given."""
+        from .images import read_rgb, resize
+
+        img = read_rgb(self.image_paths[index], self.background)
+        if img.shape[:2] != (self.cameras.height, self.cameras.width):
+            # Mixed sizes of one aspect ratio: the cameras were scaled to the common size.
+            img = resize(img, self.cameras.height, self.cameras.width)
+        if height is not None and width is not None and (height, width) != img.shape[:2]:
+            img = resize(img, height, width)
+        return img
+
+    def load_views(self, indices: Sequence[int], height: int | None = None,
+                   width: int | None = None) -> tuple[Tensor, Cameras]:
+        """Images [V, H, W, 3] (float32) and their cameras, rescaled to height x width if given."""
+        h = height or self.cameras.height
+        w = width or self.cameras.width
+        images = torch.from_numpy(np.stack([self.load_image(i, h, w) for i in indices]))
+        return images, self.cameras.subset(list(indices)).rescale(h, w)
+
+    def with_cameras(self, cameras: Cameras, near: Tensor, far: Tensor) -> "Scene":
+        """The same images with other cameras and bounds (used by normalisation)."""
+        return replace(self, cameras=cameras, near=near, far=far)
