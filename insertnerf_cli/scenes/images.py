@@ -1,0 +1,126 @@
+"""Image files: finding them, reading them as float RGB in [0, 1], resizing them.
+
+Pixels are decoded by OpenCV (8/16-bit, float TIFF, alpha, grayscale) and the EXIF orientation tag is read
+with Pillow and applied here, so the same photo reads the same way whatever the decoder's own habits.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .base import SceneError
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
+
+_EXIF_ORIENTATION = 0x0112
+
+
+def is_image(path: Path) -> bool:
+    """True for a regular file whose extension (any case) is an image extension we read."""
+    return path.suffix.lower() in IMAGE_EXTENSIONS and path.is_file() and not path.name.startswith(".")
+
+
+def find_images(folder: str | os.PathLike) -> list[Path]:
+    """Image files directly inside ``folder``, sorted by name (hidden files skipped)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise SceneError(f"{folder} is not a folder")
+    return sorted((p for p in folder.iterdir() if is_image(p)), key=lambda p: p.name)
+
+
+def _decode(path: Path) -> np.ndarray:
+    """Raw pixels [H, W] or [H, W, C] (BGR/BGRA order) as stored, any depth."""
+    try:
+        data = np.fromfile(path, dtype=np.uint8)  # fromfile + imdecode copes with any path encoding
+    except OSError as err:
+        raise SceneError(f"cannot read image {path}: {err.strerror or err}") from None
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    if img is None:
+        raise SceneError(f"cannot decode image {path}: not a readable image file (corrupt or unsupported)")
+    return img
+
+
+def exif_orientation(path: Path) -> int:
+    """The EXIF orientation tag (1..8) of an image file, 1 when absent or unreadable."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            value = int(im.getexif().get(_EXIF_ORIENTATION, 1))
+    except Exception:  # noqa: BLE001 - a file Pillow cannot parse simply has no orientation we can honour
+        return 1
+    return value if 1 <= value <= 8 else 1
+
+
+def apply_orientation(img: np.ndarray, orientation: int) -> np.ndarray:
+    """Turn stored pixels [H, W, ...] into the upright image that an EXIF ``orientation`` (1..8) describes."""
+    if orientation in (5, 6, 7, 8):
+        img = np.swapaxes(img, 0, 1)  # every odd-quarter turn is a transpose followed by a flip
+    flips = {2: (False, True), 3: (True, True), 4: (True, False),
+             5: (False, False), 6: (False, True), 7: (True, True), 8: (True, False)}
+    flip_rows, flip_cols = flips.get(orientation, (False, False))
+    if flip_rows:
+        img = img[::-1]
+    if flip_cols:
+        img = img[:, ::-1]
+    return np.ascontiguousarray(img)
+
+
+def _to_unit_float(img: np.ndarray, path: Path) -> np.ndarray:
+    """Integer or float pixels -> float32 in [0, 1], using the full range of the integer type."""
+    if np.issubdtype(img.dtype, np.integer):
+        return img.astype(np.float32) / float(np.iinfo(img.dtype).max)
+    if np.issubdtype(img.dtype, np.floating):
+        return np.clip(np.nan_to_num(img.astype(np.float32)), 0.0, 1.0)
+    raise SceneError(f"cannot read image {path}: unsupported pixel type {img.dtype}")
+
+
+def read_rgb(path: str | os.PathLike, background: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> np.ndarray:
+    """Read an image as upright float32 RGB [H, W, 3] in [0, 1].
+
+    EXIF orientation is honoured, grayscale is promoted to RGB, 16-bit images keep their precision, and an
+    alpha channel is composited onto ``background`` (RGB in [0, 1]). Unreadable files raise SceneError.
+    """
+    path = Path(path)
+    raw = _decode(path)
+    img = _to_unit_float(raw, path)
+    if img.ndim == 2:
+        img = img[..., None]
+    channels = img.shape[2]
+    if channels in (1, 2):  # gray or gray + alpha
+        color, alpha = np.repeat(img[..., :1], 3, axis=2), img[..., 1:2] if channels == 2 else None
+    elif channels in (3, 4):
+        color, alpha = img[..., 2::-1], img[..., 3:4] if channels == 4 else None  # BGR(A) -> RGB
+    else:
+        raise SceneError(f"cannot read image {path}: {channels} channels (expected 1 to 4)")
+    if alpha is not None:
+        bg = np.asarray(background, dtype=np.float32).reshape(1, 1, 3)
+        color = color * alpha + bg * (1.0 - alpha)
+    return apply_orientation(color.astype(np.float32), exif_orientation(path))
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int]:
+    """(height, width) of an image after EXIF orientation, without decoding the pixels when Pillow can."""
+    from PIL import Image
+
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            w, h = im.size
+            orientation = int(im.getexif().get(_EXIF_ORIENTATION, 1))
+    except Exception:  # noqa: BLE001 - let the full decoder give the precise error or the size
+        h, w = read_rgb(path).shape[:2]
+        return h, w
+    return (w, h) if orientation in (5, 6, 7, 8) else (h, w)
+
+
+def resize(img: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Resize [H, W, C] to [height, width, C]: area averaging when shrinking (no aliasing), bilinear otherwise."""
+    if img.shape[:2] == (height, width):
+        return img
+    shrinking = height * width < img.shape[0] * img.shape[1]
+    out = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
+    return out.reshape(height, width, *img.shape[2:])
