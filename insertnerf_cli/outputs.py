@@ -1,0 +1,180 @@
+"""What `insertnerf render` writes, each file through a temporary name and a rename (atomic.py):
+
+    OUT/frames/00000.png      RGB, 8 bit
+    OUT/depth/00000.png       uint16 millimetres in the user's scene units (value / 1000 = depth), 0 = invalid
+    OUT/depth_vis/00000.png   the depth as a turbo colour map (near = red, far = blue, invalid = black)
+    OUT/video.mp4, depth.mp4  H.264 yuv420p through imageio-ffmpeg, assembled from the PNGs
+    OUT/cameras.json          nerfstudio-style transforms of the rendered path (OpenGL c2w) with the depth scale
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from torch import Tensor
+
+from .atomic import atomic_path
+from .cameras import Cameras
+from .errors import UserError
+
+FRAME_DIRS = ("frames", "depth", "depth_vis")
+VIDEOS = ("video.mp4", "depth.mp4")
+CAMERAS_JSON = "cameras.json"
+# Depth PNGs store millimetres of the user's unit, as nerfstudio's depth files do.
+DEPTH_UNIT_SCALE = 1e-3
+_UINT16_MAX = np.iinfo(np.uint16).max
+_UINT8_MAX = np.iinfo(np.uint8).max
+# imageio's quality scale is 0-10 (10 best); 8 keeps H.264 artefacts invisible at a few MB per minute.
+VIDEO_QUALITY = 8
+
+
+@dataclass(frozen=True)
+class FramePaths:
+    """The three per-frame files of frame ``index``."""
+
+    frame: Path
+    depth: Path
+    depth_vis: Path
+
+    def all_exist(self) -> bool:
+        return self.frame.is_file() and self.depth.is_file() and self.depth_vis.is_file()
+
+
+def frame_name(index: int) -> str:
+    """File name of frame ``index``: 00000.png, 00001.png, ..."""
+    return f"{index:05d}.png"
+
+
+def frame_paths(out_dir: Path, index: int) -> FramePaths:
+    name = frame_name(index)
+    return FramePaths(*(out_dir / sub / name for sub in FRAME_DIRS))
+
+
+def ffmpeg_exe() -> str:
+    """Path of the ffmpeg binary imageio-ffmpeg uses; a UserError before any rendering if there is none."""
+    try:
+        import imageio_ffmpeg
+
+        exe = imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError) as err:
+        raise UserError(f"no ffmpeg for the videos ({err}); `pip install imageio-ffmpeg` or set "
+                        "IMAGEIO_FFMPEG_EXE to an ffmpeg binary, then re-run") from None
+    if not os.access(exe, os.X_OK):
+        raise UserError(f"ffmpeg at {exe} is not executable; set IMAGEIO_FFMPEG_EXE to a working ffmpeg")
+    return exe
+
+
+def to_uint8(rgb: np.ndarray) -> np.ndarray:
+    """Float RGB [H, W, 3] in [0, 1] -> uint8 [H, W, 3] (rounded, clipped)."""
+    return np.clip(np.rint(rgb * _UINT8_MAX), 0, _UINT8_MAX).astype(np.uint8)
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Write a uint8 [H, W, 3] or uint16 [H, W] PNG atomically (imageio keeps uint16 unchanged)."""
+    import imageio.v3 as iio
+
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, image, extension=".png")
+
+
+def depth_to_uint16(depth: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, int]:
+    """Depth [H, W] in user units -> (uint16 millimetres [H, W], number of pixels clipped at the maximum).
+
+    Invalid or non-finite pixels become 0; valid depths round to at least 1 mm so they never read as invalid.
+    """
+    mm = depth / DEPTH_UNIT_SCALE
+    ok = valid & np.isfinite(mm) & (mm > 0)
+    clipped = int((ok & (mm > _UINT16_MAX)).sum())
+    out = np.where(ok, np.clip(np.rint(mm), 1, _UINT16_MAX), 0).astype(np.uint16)
+    return out, clipped
+
+
+def depth_to_turbo(depth: np.ndarray, valid: np.ndarray, near: float, far: float) -> np.ndarray:
+    """Depth [H, W] -> turbo colours uint8 [H, W, 3] (RGB).
+
+    Normalised by disparity between 1/far and 1/near, fixed for the whole path, so colours do not flicker
+    between frames and nearby structure gets more of the colour range than the far background.
+    """
+    import cv2
+
+    disparity = 1.0 / np.maximum(depth, 1e-12)
+    t = (disparity - 1.0 / far) / (1.0 / near - 1.0 / far)
+    u8 = to_uint8(np.clip(t, 0.0, 1.0)[..., None])[..., 0]
+    rgb = cv2.applyColorMap(u8, cv2.COLORMAP_TURBO)[..., ::-1]  # OpenCV returns BGR
+    return np.where((valid & np.isfinite(depth))[..., None], rgb, 0).astype(np.uint8)
+
+
+def write_frame(paths: FramePaths, rgb: np.ndarray, depth_mm: np.ndarray, depth_vis: np.ndarray) -> None:
+    """Write one frame's three files; the colour frame last, so its presence marks the frame as done."""
+    write_png(paths.depth, depth_mm)
+    write_png(paths.depth_vis, depth_vis)
+    write_png(paths.frame, to_uint8(rgb))
+
+
+def _even(image: np.ndarray) -> np.ndarray:
+    """Pad [H, W, 3] by one replicated row/column where needed: yuv420p subsamples chroma 2x2."""
+    h, w = image.shape[:2]
+    return np.pad(image, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+
+
+def write_video(path: Path, frame_files: Sequence[Path], fps: float) -> None:
+    """Assemble PNG frames into an H.264 yuv420p MP4 atomically (odd sizes are padded to even)."""
+    import imageio.v2 as iio2
+    import imageio.v3 as iio
+
+    if not frame_files:
+        raise UserError(f"no frames to assemble into {path}")
+    with atomic_path(path) as tmp:
+        # macro_block_size=1: keep the true size instead of imageio's resize up to a multiple of 16.
+        writer = iio2.get_writer(tmp, format="FFMPEG", mode="I", fps=fps, codec="libx264", quality=VIDEO_QUALITY,
+                                 pixelformat="yuv420p", macro_block_size=1)
+        try:
+            for file in frame_files:
+                writer.append_data(_even(iio.imread(file)))
+        finally:
+            writer.close()
+
+
+def video_codec(path: Path) -> str:
+    """The codec line ffmpeg reports for a video (e.g. "h264 (High) (avc1 / 0x31637661)")."""
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(path))
+    try:
+        meta = next(reader)
+    finally:
+        reader.close()
+    return str(meta["codec"])
+
+
+def write_cameras_json(path: Path, cameras: Cameras, near: Tensor, far: Tensor, extra: dict | None = None) -> None:
+    """Write cameras.json (nerfstudio transforms, OpenGL c2w) for a path of len(cameras) frames, atomically.
+
+    Args:
+        cameras: the rendered path in the user's world units; near, far: [F] bounds in the same units.
+        extra: top-level keys to add (e.g. the path kind, fps, the similarity to the normalised frame).
+    Frames are named frames/00000.png, ...; depth files hold millimetres: depth = value * depth_unit_scale_factor.
+    """
+    from .scenes.writers import write_nerfstudio_transforms
+
+    names = [frame_name(i) for i in range(len(cameras))]
+    write_nerfstudio_transforms(path, cameras, [f"frames/{n}" for n in names], near=near, far=far,
+                                extra={"depth_unit_scale_factor": DEPTH_UNIT_SCALE, **(extra or {})},
+                                frame_extras=[{"depth_file_path": f"depth/{n}"} for n in names])
+
+
+# Absolute colour error that maps to the top of the colour map in eval's side-by-sides: errors past a quarter of
+# the range are already glaring, and a fixed scale keeps images of different views comparable.
+ERROR_VIS_MAX = 0.25
+
+
+def side_by_side(render: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """[H, 3W, 3] uint8: render | truth | per-pixel mean absolute error (turbo, 0 to ERROR_VIS_MAX)."""
+    import cv2
+
+    error = np.abs(render.astype(np.float64) - truth).mean(-1) / ERROR_VIS_MAX
+    error_rgb = cv2.applyColorMap(to_uint8(np.clip(error, 0, 1)[..., None])[..., 0], cv2.COLORMAP_TURBO)[..., ::-1]
+    return np.concatenate([to_uint8(render), to_uint8(truth), error_rgb], axis=1)

@@ -1,0 +1,193 @@
+"""Camera paths to render: an orbit (turntable) around object-centric and 360-degree captures, an LLFF-style spiral
+in front of forward-facing ones, or the input poses themselves.
+
+Every path is built from the input cameras of a (normalised) scene and keeps the OpenCV c2w convention of
+cameras.py. Orbit and spiral frames all look at one focus point; both loops are closed: the step from the last
+frame back to the first equals every other step, so a video of the path loops without a jump.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from .cameras import Cameras, check_shape
+from .errors import UserError
+
+PathKind = Literal["orbit", "spiral", "input"]
+PATH_KINDS: tuple[str, ...] = ("orbit", "spiral", "input")
+
+# LLFF's render path: two turns with a slow in-and-out motion (zrate 0.5 closes after exactly two turns),
+# radii from the 90th percentile of camera offsets, focus at a disparity mix of near and far.
+SPIRAL_TURNS = 2
+SPIRAL_ZRATE = 0.5
+SPIRAL_RADIUS_QUANTILE = 0.9
+SPIRAL_NEAR_MARGIN = 0.9
+SPIRAL_FAR_FACTOR = 5.0
+SPIRAL_NEAR_WEIGHT = 0.25
+
+
+@dataclass(frozen=True)
+class CameraPath:
+    """F frames to render.
+
+    Attributes:
+        kind: "orbit", "spiral" or "input".
+        cameras: F cameras (OpenCV c2w) at the output image size.
+        near, far: [F] depth bounds per frame, in the units of the cameras.
+        focus: [3] the point the frames look at (for "input": the least-squares focus of the input axes).
+        source_index: for "input" the input view each frame re-renders, else None.
+    """
+
+    kind: str
+    cameras: Cameras
+    near: Tensor  # [F]
+    far: Tensor  # [F]
+    focus: Tensor  # [3]
+    source_index: list[int] | None = None
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+
+def focus_point(cameras: Cameras) -> Tensor:
+    """The point [3] closest (least squares) to every camera's optical axis, as instant-ngp's colmap2nerf does.
+
+    Falls back to the mean camera centre plus the mean forward direction when the axes are (nearly) parallel,
+    where the least-squares system is singular.
+    """
+    centres, axes = cameras.centers, torch.nn.functional.normalize(cameras.forward, dim=-1)  # [N, 3]
+    eye = torch.eye(3, dtype=centres.dtype, device=centres.device)
+    proj = eye - axes[:, :, None] * axes[:, None, :]  # [N, 3, 3] projects onto the plane normal to each axis
+    lhs, rhs = proj.sum(0), (proj @ centres[:, :, None]).sum(0)[:, 0]
+    # Condition number: parallel axes (forward-facing rigs) leave the depth along them undetermined.
+    if torch.linalg.cond(lhs) > 1e6:
+        return centres.mean(0) + axes.mean(0)
+    return torch.linalg.solve(lhs, rhs)
+
+
+def mean_up(cameras: Cameras) -> Tensor:
+    """Unit world "up" [3]: minus the mean camera y axis (OpenCV y points down in the image)."""
+    up = -cameras.c2w[:, :3, 1].mean(0)
+    if up.norm() < 1e-6:
+        raise UserError("the input cameras have no common up direction; use --path input to re-render them")
+    return up / up.norm()
+
+
+def look_at(eyes: Tensor, target: Tensor, up: Tensor) -> Tensor:
+    """OpenCV c2w [F, 4, 4] for cameras at ``eyes`` [F, 3] looking at ``target`` [3] with world ``up`` [3].
+
+    OpenCV axes: z forward (to the target), y down (against up), x = y cross z (right).
+    """
+    check_shape("eyes", eyes, (None, 3))
+    z = torch.nn.functional.normalize(target - eyes, dim=-1)  # [F, 3]
+    x = torch.linalg.cross(-up.expand_as(z), z)
+    if (x.norm(dim=-1) < 1e-6).any():
+        raise UserError("a path camera looks straight up or down; the up direction is undefined there")
+    x = torch.nn.functional.normalize(x, dim=-1)
+    y = torch.linalg.cross(z, x)
+    c2w = torch.zeros(eyes.shape[0], 4, 4, dtype=eyes.dtype, device=eyes.device)
+    c2w[:, :3, 0], c2w[:, :3, 1], c2w[:, :3, 2], c2w[:, :3, 3] = x, y, z, eyes
+    c2w[:, 3, 3] = 1.0
+    return c2w
+
+
+def _basis(up: Tensor, reference: Tensor) -> tuple[Tensor, Tensor]:
+    """Two unit vectors spanning the plane normal to ``up``; the first points along ``reference``'s projection."""
+    e1 = reference - (reference @ up) * up
+    if e1.norm() < 1e-6:  # reference parallel to up: any horizontal direction will do
+        e1 = torch.linalg.cross(up, torch.eye(3, dtype=up.dtype, device=up.device)[int(up.abs().argmin())])
+    e1 = e1 / e1.norm()
+    return e1, torch.linalg.cross(up, e1)
+
+
+def _path_intrinsics(cameras: Cameras, height: int, width: int, frames: int) -> Tensor:
+    """K [F, 3, 3] for new frames: the inputs' median focal lengths (rescaled), principal point centred."""
+    K = cameras.rescale(height, width).K
+    fx, fy = K[:, 0, 0].median(), K[:, 1, 1].median()
+    out = torch.zeros(frames, 3, 3, dtype=K.dtype, device=K.device)
+    out[:, 0, 0], out[:, 1, 1], out[:, 0, 2], out[:, 1, 2], out[:, 2, 2] = fx, fy, width / 2, height / 2, 1.0
+    return out
+
+
+def orbit_path(cameras: Cameras, near: Tensor, far: Tensor, frames: int, size: tuple[int, int]) -> CameraPath:
+    """A turntable: ``frames`` cameras evenly spaced on a horizontal circle around the focus point.
+
+    The circle keeps the inputs' mean height above the focus and mean horizontal distance, starts at the first
+    input camera's azimuth, and stops one step short of 360 degrees so the loop closes. near/far are the inputs'
+    overall bounds.
+    """
+    _check_frames(frames)
+    focus, up = focus_point(cameras), mean_up(cameras)
+    offsets = cameras.centers - focus  # [N, 3]
+    height = (offsets @ up).mean()
+    radius = (offsets - (offsets @ up)[:, None] * up).norm(dim=-1).mean()
+    e1, e2 = _basis(up, offsets[0])
+    angles = torch.arange(frames, dtype=offsets.dtype, device=offsets.device) * (2 * math.pi / frames)  # [F]
+    eyes = focus + radius * (torch.cos(angles)[:, None] * e1 + torch.sin(angles)[:, None] * e2) + height * up
+    c2w = look_at(eyes, focus, up)
+    h, w = size
+    path_cams = Cameras(_path_intrinsics(cameras, h, w, frames), c2w, h, w)
+    return CameraPath("orbit", path_cams, near.min().expand(frames).clone(), far.max().expand(frames).clone(), focus)
+
+
+def spiral_path(cameras: Cameras, near: Tensor, far: Tensor, frames: int, size: tuple[int, int]) -> CameraPath:
+    """LLFF's spiral: ``frames`` cameras circling around the average pose, all looking at one focus point.
+
+    The focus lies along the average optical axis at LLFF's disparity mix of near and far; the radii along the
+    average camera's x, y, z are the 90th percentiles of the input centres' offsets; two turns with a z motion
+    at half rate close the loop.
+    """
+    _check_frames(frames)
+    centre = cameras.centers.mean(0)
+    axes = [torch.nn.functional.normalize(cameras.c2w[:, :3, i].mean(0), dim=0) for i in range(3)]
+    forward = axes[2]
+    near_focus, far_focus = SPIRAL_NEAR_MARGIN * near.min(), SPIRAL_FAR_FACTOR * far.max()
+    depth = 1.0 / (SPIRAL_NEAR_WEIGHT / near_focus + (1 - SPIRAL_NEAR_WEIGHT) / far_focus)
+    focus = centre + depth * forward
+    offsets = cameras.centers - centre  # [N, 3]
+    radii = [torch.quantile((offsets @ a).abs(), SPIRAL_RADIUS_QUANTILE) for a in axes]
+    t = torch.arange(frames, dtype=offsets.dtype, device=offsets.device) * (2 * math.pi * SPIRAL_TURNS / frames)
+    waves = [torch.cos(t), torch.sin(t), torch.sin(SPIRAL_ZRATE * t)]
+    eyes = centre + sum(r * wave[:, None] * a for r, wave, a in zip(radii, waves, axes))  # [F, 3]
+    c2w = look_at(eyes, focus, -axes[1])
+    h, w = size
+    path_cams = Cameras(_path_intrinsics(cameras, h, w, frames), c2w, h, w)
+    return CameraPath("spiral", path_cams, near.min().expand(frames).clone(), far.max().expand(frames).clone(), focus)
+
+
+def input_path(cameras: Cameras, near: Tensor, far: Tensor, size: tuple[int, int],
+               frames: int | None = None) -> CameraPath:
+    """The input cameras themselves (rescaled to ``size``), or ``frames`` of them evenly spread, with their bounds."""
+    index = list(range(len(cameras)))
+    if frames is not None and frames < len(index):
+        _check_frames(frames)
+        index = sorted({round(i * (len(cameras) - 1) / max(frames - 1, 1)) for i in range(frames)})
+    h, w = size
+    return CameraPath("input", cameras.subset(index).rescale(h, w), near[index].clone(), far[index].clone(),
+                      focus_point(cameras), source_index=index)
+
+
+def make_path(kind: str, cameras: Cameras, near: Tensor, far: Tensor, frames: int,
+              size: tuple[int, int]) -> CameraPath:
+    """Dispatch on ``kind`` ("orbit", "spiral" or "input"); see the functions above."""
+    if kind == "orbit":
+        return orbit_path(cameras, near, far, frames, size)
+    if kind == "spiral":
+        return spiral_path(cameras, near, far, frames, size)
+    if kind == "input":
+        return input_path(cameras, near, far, size, frames)
+    raise UserError(f"unknown camera path {kind!r}; choose one of {', '.join(PATH_KINDS)}")
+
+
+def default_path_kind(layout: str) -> str:
+    """An orbit for object-centric / 360-degree captures, a spiral for forward-facing ones."""
+    return "spiral" if layout == "forward" else "orbit"
+
+
+def _check_frames(frames: int) -> None:
+    if frames < 1:
+        raise UserError(f"--frames must be at least 1, got {frames}")
