@@ -1,0 +1,122 @@
+"""Frozen configuration dataclasses and their JSON round trip.
+
+Every checkpoint stores its ``ModelConfig`` as JSON; ``render`` rebuilds the network from it, so the round trip
+must be exact and must refuse keys it does not know (a checkpoint from another version) with one clear line.
+"""
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar
+
+from .errors import UserError
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Every size and switch of the InsertNeRF generator (see docs/model.md for what each costs).
+
+    Scales are listed coarse to fine: index 0 is the 1/8-resolution U-Net output, 1 is 1/4, 2 is 1/2.
+    """
+
+    # --- U-Net encoder
+    encoder_widths: tuple[int, ...] = (16, 24, 32, 48)  # channels at 1/2, 1/4, 1/8, 1/16 of the image
+    feature_dims: tuple[int, int, int] = (24, 16, 8)  # output features at 1/8, 1/4, 1/2 (paper: coarse is widest)
+    backbone_decoder_width: int = 8  # the small decoder used only by the reconstruction loss
+    # --- multi-layer dynamic-static aggregation
+    aggregate_hidden: int = 8  # hidden width of the dynamic-weight MLP (per view, so kept small)
+    static_sharpness_init: float = 0.2  # IBRNet's s in exp(|s|(cos - 1))
+    # --- HyperNet modules and the NeRF MLP
+    nerf_width: int = 32
+    nerf_layers: int = 4  # geometry layers, each preceded by a HyperNet module
+    appearance_width: int = 32
+    z_branches: int = 2  # progressive appearance hyper branches (paper Table 9: 2 is the sweet spot)
+    film_hidden: int = 32  # hidden width of the DFiLM frequency/shift MLP
+    conditioning: Literal["hyper", "concat"] = "hyper"  # "concat": the feature-concatenation ablation
+    # --- sampling and encodings
+    samples_coarse: int = 64
+    samples_fine: int = 64
+    separate_fine_head: bool = False  # False: both passes share one head (needs samples_coarse == samples_fine)
+    sample_in_disparity: bool = False  # coarse samples uniform in 1/t (forward-facing) instead of in t
+    pe_freqs_pos: int = 6
+    pe_freqs_dir: int = 4
+    coord_scale: float = 0.5  # world coordinates are multiplied by this before positional encoding
+    num_views: int = 8  # reference views N used in training
+    # --- rendering
+    density_activation: Literal["softplus", "relu", "exp"] = "softplus"
+    density_bias: float = -1.0  # added before the activation so an untrained field starts mostly empty
+    blend_reference_colour: bool = True  # mix the network colour with the dynamic-weight blend of reference colours
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    # --- loss weights (method.md section 3)
+    loss_backbone_weight: float = 0.1
+    loss_dynamic_weight: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.conditioning not in ("hyper", "concat"):
+            raise ValueError(f"conditioning must be 'hyper' or 'concat', got {self.conditioning!r}")
+        if self.density_activation not in ("softplus", "relu", "exp"):
+            raise ValueError(f"unknown density_activation {self.density_activation!r}")
+        if len(self.feature_dims) != 3 or len(self.encoder_widths) != 4:
+            raise ValueError("feature_dims needs 3 scales and encoder_widths 4 levels")
+        if any(d % 2 for d in self.feature_dims):
+            raise ValueError(f"feature_dims must be even (the aggregation halves them), got {self.feature_dims}")
+        if not self.separate_fine_head and self.samples_coarse != self.samples_fine:
+            raise ValueError("a shared fine head needs samples_coarse == samples_fine "
+                             "(the HyperNet mixes along the sample axis); set separate_fine_head=True")
+        if min(self.samples_coarse, self.samples_fine, self.nerf_layers, self.z_branches, self.num_views) < 1:
+            raise ValueError("sample counts, nerf_layers, z_branches and num_views must be positive")
+
+
+def config_to_json(cfg: Any) -> dict[str, Any]:
+    """A frozen dataclass as a JSON-ready dict (tuples become lists, nested dataclasses become dicts)."""
+    if not dataclasses.is_dataclass(cfg) or isinstance(cfg, type):
+        raise TypeError(f"expected a dataclass instance, got {type(cfg).__name__}")
+    return {f.name: _to_json_value(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+
+
+def _to_json_value(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return config_to_json(value)
+    if isinstance(value, (tuple, list)):
+        return [_to_json_value(v) for v in value]
+    return value
+
+
+def config_from_json(cls: type[T], data: dict[str, Any]) -> T:
+    """Rebuild ``cls`` from :func:`config_to_json` output; unknown keys or bad values raise one-line UserError.
+
+    Missing keys take the dataclass defaults, so configs saved before a field was added still load.
+    """
+    if not isinstance(data, dict):
+        raise UserError(f"{cls.__name__}: expected a JSON object, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise UserError(f"{cls.__name__}: unknown key(s) {', '.join(unknown)}; "
+                        "the file was written by an incompatible version of insertnerf")
+    kwargs = {name: _from_json_value(hints[name], value) for name, value in data.items()}
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as err:
+        raise UserError(f"{cls.__name__}: invalid value: {err}") from None
+
+
+def _from_json_value(hint: Any, value: Any) -> Any:
+    """Convert a JSON value back to the annotated type (lists to tuples, dicts to nested dataclasses)."""
+    origin = typing.get_origin(hint)
+    if dataclasses.is_dataclass(hint) and isinstance(value, dict):
+        return config_from_json(hint, value)
+    if origin is tuple and isinstance(value, list):
+        args = typing.get_args(hint)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_from_json_value(args[0], v) for v in value)
+        if args and len(args) != len(value):
+            raise UserError(f"expected {len(args)} values, got {len(value)}: {value}")
+        return tuple(_from_json_value(a, v) for a, v in zip(args, value)) if args else tuple(value)
+    if hint is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value

@@ -1,0 +1,88 @@
+"""InsertNeRF: a vanilla NeRF made generalizable by HyperNet modules fed with multi-view features."""
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from ..config import ModelConfig
+from ..rays import Rays
+from ..render import Composite, composite, composite_weights
+from ..sampling import RaySamples, importance_samples, stratified_samples
+from .aggregate import ScaleAggregator
+from .encoder import UNetEncoder, pad_to_stride
+from .losses import compute_losses
+from .nerf import NeRFHead
+from .projection import project_samples, projection_matrices
+from .types import EncodedViews, LossTerms, RenderOutput, SourceViews
+
+
+class InsertNeRF(nn.Module):
+    """The generator: reference views + query rays -> colour, depth and opacity of both passes."""
+
+    def __init__(self, config: ModelConfig) -> None:
+        super().__init__()
+        self.config = config
+        cfg = config
+        self.encoder = UNetEncoder(cfg.encoder_widths, cfg.feature_dims, cfg.backbone_decoder_width)
+        colour_dim = 3  # each scale's per-view input is its U-Net feature plus the reference colour
+        self.aggregators = nn.ModuleList(
+            ScaleAggregator(dim + colour_dim, dim // 2, cfg.aggregate_hidden, cfg.static_sharpness_init)
+            for dim in cfg.feature_dims)
+        cond_dims = [agg.out_dim for agg in self.aggregators]
+        self.coarse_head = NeRFHead(cfg, cond_dims, cfg.samples_coarse)
+        # Shared by default: on a CPU budget one head gets the gradients of both passes (see docs/model.md).
+        self.fine_head = NeRFHead(cfg, cond_dims, cfg.samples_fine) if cfg.separate_fine_head else self.coarse_head
+        self.register_buffer("background", torch.tensor(cfg.background, dtype=torch.float32), persistent=False)
+
+    def encode(self, views: SourceViews) -> EncodedViews:
+        """U-Net features of the reference views; in training mode also the backbone reconstruction."""
+        param = self.background
+        images = pad_to_stride(views.images.to(param).permute(0, 3, 1, 2))  # [V, 3, Hp, Wp]
+        features = self.encoder(images)
+        cameras = views.cameras.to(device=param.device, dtype=param.dtype)
+        height, width = cameras.height, cameras.width
+        recon = None
+        if self.training and torch.is_grad_enabled():
+            recon = self.encoder.reconstruct(features[-1])[..., :height, :width]  # [V, 3, H, W]
+        return EncodedViews(features=features, images=images, projection=projection_matrices(cameras),
+                            centers=cameras.centers, height=height, width=width, reconstruction=recon)
+
+    def forward(self, encoded: EncodedViews, rays: Rays, train: bool) -> RenderOutput:
+        """Render R rays: stratified coarse pass, then an importance-sampled fine pass."""
+        cfg = self.config
+        rays = rays.to(dtype=self.background.dtype)
+        coarse_samples = stratified_samples(rays, cfg.samples_coarse, jitter=train,
+                                            in_disparity=cfg.sample_in_disparity)
+        coarse, dynamic_coarse = self.render_pass(self.coarse_head, encoded, rays, coarse_samples)
+        fine_samples = importance_samples(coarse_samples, coarse.weights, cfg.samples_fine, jitter=train,
+                                          near=rays.near, far=rays.far)
+        fine, dynamic_fine = self.render_pass(self.fine_head, encoded, rays, fine_samples)
+        return RenderOutput(coarse=coarse, fine=fine, dynamic_coarse=dynamic_coarse, dynamic_fine=dynamic_fine)
+
+    def render_pass(self, head: NeRFHead, encoded: EncodedViews, rays: Rays,
+                    samples: RaySamples) -> tuple[Composite, Tensor]:
+        """sample -> project -> aggregate -> hypernet + nerf -> composite, for one set of samples.
+
+        Returns the composite and the dynamic-weight colour [R, 3] composited with the detached weights.
+        """
+        points = samples.points(rays)  # [R, S, 3]
+        seen = project_samples(encoded, points, rays.directions)
+        conds, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in
+                                zip(self.aggregators, self._with_colour(seen.features, seen.colours))))
+        dynamic = torch.stack(dynamics).mean(dim=0)  # [V, R, S, 1], averaged over scales
+        reference = (dynamic * seen.colours).sum(dim=0)  # [R, S, 3]
+        field = head(points, rays.directions, conds)
+        colour = field.colour
+        if self.config.blend_reference_colour:
+            colour = field.blend * colour + (1.0 - field.blend) * reference  # [R, S, 3]
+        weights = composite_weights(field.density, samples.edges, rays.directions.norm(dim=-1))
+        main = composite(weights, colour, samples.t, self.background)
+        return main, composite(weights.detach(), reference, samples.t, self.background).rgb
+
+    @staticmethod
+    def _with_colour(features: tuple[Tensor, ...], colours: Tensor) -> list[Tensor]:
+        return [torch.cat([f, colours], dim=-1) for f in features]  # [V, R, S, C_l + 3]
+
+    def losses(self, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews) -> LossTerms:
+        """Colour MSE on both passes + weighted backbone and dynamic-weight losses (see losses.py)."""
+        return compute_losses(self.config, output, target_rgb, encoded)

@@ -1,0 +1,32 @@
+"""The training objective (paper section 3.4, method.md sections 3 and 7):
+colour MSE on both passes + w_b * backbone reconstruction MSE + w_dy * dynamic-weight colour MSE."""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from ..cameras import check_shape
+from ..config import ModelConfig
+from ..render import psnr
+from .types import EncodedViews, LossTerms, RenderOutput
+
+
+def compute_losses(cfg: ModelConfig, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews) -> LossTerms:
+    """LossTerms for R rays with ground-truth colours target_rgb [R, 3] (composited on the same background).
+
+    The backbone term needs ``encoded.reconstruction`` (present when encoded in training mode); without it the
+    term is 0. The dynamic term composites the dynamic-weight colour blend with the passes' detached weights, so it
+    trains the dynamic weights to pick the views that see the surface without moving the geometry.
+    """
+    check_shape("target_rgb", target_rgb, (output.fine.rgb.shape[0], 3))
+    mse_coarse = F.mse_loss(output.coarse.rgb, target_rgb)
+    mse_fine = F.mse_loss(output.fine.rgb, target_rgb)
+    dynamic = 0.5 * (F.mse_loss(output.dynamic_coarse, target_rgb) + F.mse_loss(output.dynamic_fine, target_rgb))
+    if encoded.reconstruction is not None:
+        backbone = F.mse_loss(encoded.reconstruction, encoded.source_images())
+    else:
+        backbone = torch.zeros((), dtype=target_rgb.dtype, device=target_rgb.device)
+    total = (mse_coarse + mse_fine + cfg.loss_backbone_weight * backbone + cfg.loss_dynamic_weight * dynamic)
+    return LossTerms(total=total, mse_coarse=mse_coarse.detach(), mse_fine=mse_fine.detach(),
+                     backbone=backbone.detach(), dynamic=dynamic.detach(), psnr_fine=psnr(mse_fine.detach()))

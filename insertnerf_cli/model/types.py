@@ -1,0 +1,96 @@
+"""The typed containers that cross the generator's boundaries (glossary: V views, R rays, S samples, C channels)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from ..cameras import Cameras, check_shape
+from ..render import Composite
+
+
+@dataclass(frozen=True)
+class SourceViews:
+    """The reference views a scene is rendered from.
+
+    Attributes:
+        images: [V, H, W, 3] float RGB in [0, 1].
+        cameras: V cameras of size H x W (OpenCV c2w).
+    """
+
+    images: Tensor  # [V, H, W, 3]
+    cameras: Cameras
+
+    def __post_init__(self) -> None:
+        check_shape("images", self.images, (len(self.cameras), self.cameras.height, self.cameras.width, 3))
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> "SourceViews":
+        return SourceViews(self.images.to(device=device, dtype=dtype), self.cameras.to(device=device, dtype=dtype))
+
+
+@dataclass(frozen=True)
+class EncodedViews:
+    """Reference views after the U-Net, with everything projection needs precomputed once per frame.
+
+    The images are zero-padded on the right and bottom to a multiple of the U-Net's total stride, so that one
+    normalised grid (relative to the padded size) addresses the images and every feature scale exactly.
+
+    Attributes:
+        features: per scale, coarse to fine: [V, C_l, Hp / 8, Wp / 8], [V, C_l, Hp / 4, Wp / 4], [V, C_l, Hp / 2, Wp / 2].
+        images: [V, 3, Hp, Wp] padded reference colours (channels first, as grid_sample wants them).
+        projection: [V, 3, 4] K [R | t]: world point (homogeneous) -> (u z, v z, z) in pixels.
+        centers: [V, 3] camera centres.
+        height, width: the real image size H, W (pixels beyond it are padding and count as outside).
+        reconstruction: [V, 3, H, W] the backbone decoder's rebuild of the images (training only, else None).
+    """
+
+    features: tuple[Tensor, ...]
+    images: Tensor  # [V, 3, Hp, Wp]
+    projection: Tensor  # [V, 3, 4]
+    centers: Tensor  # [V, 3]
+    height: int
+    width: int
+    reconstruction: Tensor | None = None  # [V, 3, H, W]
+
+    def __len__(self) -> int:
+        return self.images.shape[0]
+
+    @property
+    def padded_size(self) -> tuple[int, int]:
+        return self.images.shape[-2], self.images.shape[-1]
+
+    def source_images(self) -> Tensor:
+        """The unpadded reference images [V, 3, H, W]."""
+        return self.images[..., : self.height, : self.width]
+
+
+@dataclass(frozen=True)
+class RenderOutput:
+    """Both passes of the generator over R rays.
+
+    Attributes:
+        coarse, fine: composites of the stratified and the importance-sampled pass.
+        dynamic_coarse, dynamic_fine: [R, 3] the reference colours blended by the dynamic weights and composited
+            with the pass's (detached) weights, supervised by the dynamic-weight loss.
+    """
+
+    coarse: Composite
+    fine: Composite
+    dynamic_coarse: Tensor  # [R, 3]
+    dynamic_fine: Tensor  # [R, 3]
+
+
+@dataclass(frozen=True)
+class LossTerms:
+    """The training objective and its parts (each a scalar tensor; only ``total`` carries gradients to use)."""
+
+    total: Tensor
+    mse_coarse: Tensor
+    mse_fine: Tensor
+    backbone: Tensor
+    dynamic: Tensor
+    psnr_fine: Tensor
