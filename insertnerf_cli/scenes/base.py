@@ -20,6 +20,19 @@ class SceneError(UserError):
 
 
 @dataclass(frozen=True)
+class Distortion:
+    """Lens distortion of one view, removed when its image is loaded (the pinhole K stays the same).
+
+    Attributes:
+        model: "opencv" (cv2.undistort order k1, k2, p1, p2[, k3[, k4, k5, k6]]) or "fisheye" (k1..k4).
+        coeffs: the coefficients; they act on normalised image coordinates, so they hold at any image size.
+    """
+
+    model: Literal["opencv", "fisheye"]
+    coeffs: tuple[float, ...]
+
+
+@dataclass(frozen=True)
 class Scene:
     """Posed images of one scene.
 
@@ -33,7 +46,8 @@ class Scene:
         format: name of the reader that produced it ("blender", "nerfstudio", "llff", "colmap", "dtu", ...).
         background: RGB in [0, 1] that transparent pixels are composited on.
         depth_paths: optional ground-truth depth per view (synthetic scenes), else None.
-        depth_scale: metres-per-unit of the stored depth files (e.g. 1e-3 for uint16 millimetres).
+        depth_scale: scene units per stored depth unit (e.g. 1e-3 for uint16 millimetres of a metre scene).
+        distortion: per view, the lens distortion removed on load (None entries for pinhole views), or None.
     """
 
     root: Path
@@ -47,6 +61,7 @@ class Scene:
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     depth_paths: list[Path] | None = None
     depth_scale: float = 1.0
+    distortion: list[Distortion | None] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.cameras)
@@ -84,9 +99,13 @@ class Scene:
 
     def load_image(self, index: int, height: int | None = None, width: int | None = None) -> np.ndarray:
         """Image ``index`` as float32 RGB [H, W, 3] in [0, 1], resized to height x width if given."""
-        from .images import read_rgb, resize
+        from .images import read_rgb, resize, undistort
 
         img = read_rgb(self.image_paths[index], self.background)
+        if self.distortion is not None and self.distortion[index] is not None:
+            # Undistort at the file's own resolution, where K is the common-size K scaled to the file.
+            K = self.cameras.rescale(img.shape[0], img.shape[1]).K[index].cpu().numpy()
+            img = undistort(img, K, self.distortion[index])
         if img.shape[:2] != (self.cameras.height, self.cameras.width):
             # Mixed sizes of one aspect ratio: the cameras were scaled to the common size.
             img = resize(img, self.cameras.height, self.cameras.width)
@@ -101,6 +120,16 @@ class Scene:
         w = width or self.cameras.width
         images = torch.from_numpy(np.stack([self.load_image(i, h, w) for i in indices]))
         return images, self.cameras.subset(list(indices)).rescale(h, w)
+
+    def subset(self, indices: Sequence[int]) -> "Scene":
+        """The views at ``indices`` (in that order); splits are re-indexed and keep only the chosen views."""
+        indices = list(indices)
+        where = {old: new for new, old in enumerate(indices)}
+        pick = (lambda xs: None if xs is None else [xs[i] for i in indices])
+        splits = {k: [where[i] for i in v if i in where] for k, v in self.splits.items()}
+        return replace(self, cameras=self.cameras.subset(indices), image_paths=pick(self.image_paths),
+                       near=self.near[indices], far=self.far[indices], splits=splits,
+                       depth_paths=pick(self.depth_paths), distortion=pick(self.distortion))
 
     def with_cameras(self, cameras: Cameras, near: Tensor, far: Tensor) -> "Scene":
         """The same images with other cameras and bounds (used by normalisation)."""

@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .base import SceneError
+from .base import Distortion, SceneError
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 
@@ -124,3 +124,16 @@ def resize(img: np.ndarray, height: int, width: int) -> np.ndarray:
     shrinking = height * width < img.shape[0] * img.shape[1]
     out = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
     return out.reshape(height, width, *img.shape[2:])
+
+
+def undistort(img: np.ndarray, K: np.ndarray, distortion: Distortion) -> np.ndarray:
+    """Remove lens distortion from [H, W, C] whose camera matrix at this size is K [3, 3]; K stays the camera.
+
+    Pixels that fall outside the distorted image come out black, as COLMAP's undistorter leaves them.
+    """
+    coeffs = np.asarray(distortion.coeffs, dtype=np.float64)
+    K = np.array(K, dtype=np.float64)
+    K[:2, 2] -= 0.5  # OpenCV puts pixel centres at integers, we (and COLMAP) at +0.5
+    if distortion.model == "fisheye":
+        return cv2.fisheye.undistortImage(img, K, coeffs[:4], Knew=K).reshape(img.shape)
+    return cv2.undistort(img, K, coeffs, newCameraMatrix=K).reshape(img.shape)

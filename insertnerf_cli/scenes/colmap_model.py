@@ -1,0 +1,95 @@
+"""COLMAP scenes: a sparse model (``sparse/0/`` or ``sparse/``, binary or text) with ``images/``.
+
+Read with ``pycolmap.Reconstruction``. Registered images only, sorted by name. Poses are COLMAP's
+world-to-camera (OpenCV axes). Pinhole models are used as they are; radial/OpenCV/fisheye models are
+undistorted when images load (K unchanged); other models are refused. Near/far come from the 0.1/99.9
+percentiles of the depths of the points each image observes.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..cameras import Cameras, w2c_to_c2w
+from .base import Distortion, Scene, SceneError
+from .common import ReadViews, assemble, safe_path
+from .geometry import point_depths
+
+MODEL_DIRS = ("sparse/0", "sparse")
+_UNDISTORT_HINT = ("undistort the model first (`colmap image_undistorter`, or run `insertnerf poses` on the "
+                   "images), then point insertnerf at the undistorted folder")
+
+
+def find_model(root: Path) -> Path | None:
+    """The first of sparse/0, sparse that holds cameras.bin or cameras.txt."""
+    for sub in MODEL_DIRS:
+        if any((root / sub / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+            return root / sub
+    return None
+
+
+def _distortion(model: str, params: np.ndarray, where: str) -> Distortion | None:
+    """COLMAP camera model + params -> our Distortion (None for pinhole models)."""
+    p = [float(x) for x in params]
+    if model in ("SIMPLE_PINHOLE", "PINHOLE"):
+        return None
+    if model == "SIMPLE_RADIAL":
+        coeffs = (p[3], 0.0, 0.0, 0.0)
+    elif model == "RADIAL":
+        coeffs = (p[3], p[4], 0.0, 0.0)
+    elif model in ("OPENCV", "FULL_OPENCV"):
+        coeffs = tuple(p[4:])  # k1 k2 p1 p2 [k3 k4 k5 k6]: the same order as cv2.undistort
+    elif model == "OPENCV_FISHEYE":
+        return Distortion("fisheye", tuple(p[4:8]))
+    else:
+        raise SceneError(f"{where}: COLMAP camera model {model} is not supported; {_UNDISTORT_HINT}")
+    return Distortion("opencv", coeffs) if any(coeffs) else None
+
+
+def _observed_depths(rec, image_ids: list[int], cameras: Cameras) -> list[Tensor] | None:
+    """Per image, depths of the 3D points it observes; None when the model has no observations."""
+    ids = [[p.point3D_id for p in rec.images[i].get_observation_points2D()] for i in image_ids]
+    if not any(ids):
+        if rec.num_points3D() == 0:
+            return None
+        xyz = torch.from_numpy(np.stack([pt.xyz for pt in rec.points3D.values()]))  # [P, 3]
+        return point_depths(cameras, xyz)
+    depths = []
+    for n, point_ids in enumerate(ids):
+        xyz = torch.from_numpy(np.stack([rec.points3D[j].xyz for j in point_ids])) if point_ids \
+            else torch.zeros(0, 3, dtype=torch.float64)
+        depths.append(cameras.subset([n]).project(xyz)[1][0] if point_ids else xyz[:, 0])
+    return depths
+
+
+def read_colmap(root: Path, images: str, background: tuple[float, float, float]) -> Scene:
+    import pycolmap
+
+    model_dir = find_model(root)
+    try:
+        rec = pycolmap.Reconstruction(str(model_dir))
+    except Exception as err:  # noqa: BLE001 - pycolmap raises plain RuntimeError/ValueError on bad files
+        raise SceneError(f"cannot read the COLMAP model in {model_dir}: {err}") from None
+    image_ids = sorted((i for i, im in rec.images.items() if im.has_pose), key=lambda i: rec.images[i].name)
+    if not image_ids:
+        raise SceneError(f"{model_dir}: the COLMAP model has no registered images")
+    paths, Ks, w2c, sizes, dists = [], [], [], [], []
+    for i in image_ids:
+        im = rec.images[i]
+        cam = rec.cameras[im.camera_id]
+        paths.append(safe_path(root, Path(images) / im.name, "image name"))
+        dists.append(_distortion(cam.model.name, np.asarray(cam.params), f"{model_dir} camera {im.camera_id}"))
+        Ks.append(torch.from_numpy(np.asarray(cam.calibration_matrix(), dtype=np.float64)))
+        sizes.append((int(cam.height), int(cam.width)))
+        pose = torch.eye(4, dtype=torch.float64)
+        pose[:3] = torch.from_numpy(np.asarray(im.cam_from_world().matrix(), dtype=np.float64))
+        w2c.append(pose)
+    K, c2w = torch.stack(Ks), w2c_to_c2w(torch.stack(w2c))
+    declared = Cameras(K, c2w, sizes[0][0], sizes[0][1])  # projection only needs K and poses
+    views = ReadViews(root=root, paths=paths, K=K, c2w=c2w, format="colmap", sizes=sizes,
+                      depths=_observed_depths(rec, image_ids, declared),
+                      distortion=dists if any(d is not None for d in dists) else None)
+    return assemble(views, background)

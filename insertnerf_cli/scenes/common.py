@@ -1,0 +1,150 @@
+"""What every reader shares: safe paths, and turning what a reader found into a checked ``Scene``.
+
+A reader fills a :class:`ReadViews` (cameras at the sizes its file declares, in OpenCV axes) and calls
+:func:`assemble`, which checks the image files, brings mixed sizes to one, and fills in bounds and layout.
+"""
+from __future__ import annotations
+
+import os
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from ..cameras import Cameras
+from .base import Distortion, Layout, Scene, SceneError
+from .geometry import bounds_from_depths, bounds_from_geometry, detect_layout
+from .images import image_size
+
+# Two sizes share an aspect ratio when rescaling one to the other moves its height by at most this many pixels.
+ASPECT_TOLERANCE_PX = 1.0
+# How many missing files a message names before it says "and N more".
+_NAMES_SHOWN = 3
+
+
+def safe_path(root: Path, relative: str | os.PathLike, what: str = "path") -> Path:
+    """``root / relative`` normalised, refused (SceneError) when it lands outside ``root``.
+
+    Absolute paths and ``..`` that climb out are refused. The check is on the path as written, not on
+    symbolic links, so a user may still link a big ``images/`` folder into a scene.
+    """
+    candidate = Path(os.path.normpath(root / relative))
+    if not candidate.is_relative_to(os.path.normpath(root)):
+        raise SceneError(f"{root}: {what} {str(relative)!r} points outside the scene folder; "
+                         "scene files may only refer to files inside their folder")
+    return candidate
+
+
+@dataclass(frozen=True)
+class ReadViews:
+    """What a reader found, before checks. N views.
+
+    Attributes:
+        root: the scene folder.
+        paths: N image files (already checked with :func:`safe_path`).
+        K: [N, 3, 3] intrinsics, each for the image size in ``sizes`` (or the file's size when None).
+        c2w: [N, 4, 4] camera-to-world, OpenCV axes.
+        format: reader name.
+        sizes: N declared (height, width) that K refers to, or None to take the files' sizes.
+        near, far: [N] bounds from the format, or None.
+        depths: N tensors of sparse-point depths seen by each view (for bounds), or None.
+        splits, layout, depth_paths, depth_scale, distortion: as in :class:`Scene` (layout None = detect).
+    """
+
+    root: Path
+    paths: list[Path]
+    K: Tensor  # [N, 3, 3]
+    c2w: Tensor  # [N, 4, 4]
+    format: str
+    sizes: list[tuple[int, int]] | None = None
+    near: Tensor | None = None  # [N]
+    far: Tensor | None = None  # [N]
+    depths: list[Tensor] | None = None
+    splits: dict[str, list[int]] = field(default_factory=dict)
+    layout: Layout | None = None
+    depth_paths: list[Path] | None = None
+    depth_scale: float = 1.0
+    distortion: list[Distortion | None] | None = None
+
+
+def names_list(paths: list[str] | list[Path]) -> str:
+    """'a, b, c and 4 more' for messages."""
+    shown = ", ".join(str(p) for p in paths[:_NAMES_SHOWN])
+    return shown + (f" and {len(paths) - _NAMES_SHOWN} more" if len(paths) > _NAMES_SHOWN else "")
+
+
+def _file_sizes(root: Path, paths: list[Path]) -> list[tuple[int, int]]:
+    """(height, width) of each image file; every missing file is named in one SceneError."""
+    missing = [p.relative_to(root) if p.is_relative_to(root) else p for p in paths if not p.is_file()]
+    if missing:
+        raise SceneError(f"{root}: {len(missing)} of {len(paths)} images listed by the scene are missing: "
+                         f"{names_list(missing)}")
+    return [image_size(p) for p in paths]
+
+
+def _same_aspect(a: tuple[int, int], b: tuple[int, int]) -> bool:
+    return abs(a[0] * b[1] / a[1] - b[0]) <= ASPECT_TOLERANCE_PX
+
+
+def _scale_K(K: Tensor, src: tuple[int, int], dst: tuple[int, int]) -> Tensor:
+    """K [3, 3] for an image of size src resized to dst (fx, cx by the width ratio; fy, cy by the height ratio)."""
+    scale = torch.tensor([dst[1] / src[1], dst[0] / src[0], 1.0], dtype=K.dtype)
+    return K * scale[:, None]
+
+
+def unify_sizes(views: ReadViews) -> Cameras:
+    """Cameras at one common image size: the most frequent file size (the largest on ties).
+
+    K is first moved from the declared size to the file's size (e.g. images_4/ next to full-size cameras),
+    then to the common size. Files whose aspect ratio differs from the declared or common one are refused.
+    """
+    files = _file_sizes(views.root, views.paths)
+    declared = views.sizes or files
+    K = views.K.to(torch.float64).clone()
+    for i, (dec, got) in enumerate(zip(declared, files)):
+        if not _same_aspect(dec, got):
+            raise SceneError(f"{views.paths[i]}: image is {got[1]}x{got[0]} but its camera is for "
+                             f"{dec[1]}x{dec[0]} (another aspect ratio); re-export the images or the poses")
+        K[i] = _scale_K(K[i], dec, got)
+    counts = Counter(files)
+    common = max(counts, key=lambda s: (counts[s], s[0] * s[1]))
+    odd = [views.paths[i].name for i, s in enumerate(files) if not _same_aspect(s, common)]
+    if odd:
+        raise SceneError(f"{views.root}: images have different aspect ratios ({len(odd)} differ from "
+                         f"{common[1]}x{common[0]}: {names_list(odd)}); crop them to one aspect ratio")
+    for i, got in enumerate(files):
+        K[i] = _scale_K(K[i], got, common)
+    return Cameras(K=K, c2w=views.c2w.to(torch.float64), height=common[0], width=common[1])
+
+
+def _check_poses(views: ReadViews) -> None:
+    """Refuse non-finite or non-rigid poses: they come from broken files and would poison everything after."""
+    c2w = views.c2w.to(torch.float64)
+    if not bool(torch.isfinite(c2w).all() and torch.isfinite(views.K.to(torch.float64)).all()):
+        raise SceneError(f"{views.root}: camera poses or intrinsics contain NaN or infinity")
+    rot = c2w[:, :3, :3]
+    eye = torch.eye(3, dtype=torch.float64).expand_as(rot)
+    if not torch.allclose(rot.transpose(1, 2) @ rot, eye, atol=1e-4) or bool((torch.det(rot) < 0).any()):
+        raise SceneError(f"{views.root}: a camera rotation is not a proper rotation (scaled or mirrored pose)")
+
+
+def assemble(views: ReadViews, background: tuple[float, float, float]) -> Scene:
+    """Check the views and build the Scene: common size, bounds (format > points > geometry), layout."""
+    if not views.paths:
+        raise SceneError(f"{views.root}: the {views.format} scene lists no images")
+    _check_poses(views)
+    cameras = unify_sizes(views)
+    layout = views.layout or detect_layout(cameras)
+    if views.near is not None and views.far is not None:
+        near, far = views.near.to(torch.float64), views.far.to(torch.float64)
+    else:
+        near, far = bounds_from_geometry(cameras, layout)
+        if views.depths is not None:
+            near, far = bounds_from_depths(views.depths, (near, far))
+    if not bool(((near > 0) & (far > near)).all()):
+        raise SceneError(f"{views.root}: near/far bounds must satisfy 0 < near < far for every view")
+    return Scene(root=views.root, cameras=cameras, image_paths=views.paths, near=near, far=far,
+                 splits=views.splits, layout=layout, format=views.format, background=background,
+                 depth_paths=views.depth_paths, depth_scale=views.depth_scale, distortion=views.distortion)

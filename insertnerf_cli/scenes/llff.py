@@ -1,0 +1,50 @@
+"""LLFF scenes: ``poses_bounds.npy`` [N, 17] with ``images/`` (or a chosen ``images_N/``).
+
+Row i belongs to the i-th image in name order. Its first 15 values are a 3x5 matrix: [down, right, back]
+rotation columns, the centre, and [H, W, f] at full resolution; the last two are near/far. The principal
+point is the image centre and fx = fy = f; K is scaled to the images actually read.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..cameras import intrinsics, llff_to_opencv
+from .base import Scene, SceneError
+from .common import ReadViews, assemble, safe_path
+from .images import find_images
+
+FILENAME = "poses_bounds.npy"
+_ROW = 17  # 3x5 pose-and-hwf matrix + near + far
+
+
+def load_poses_bounds(path: Path) -> np.ndarray:
+    """The [N, 17] array, checked (no pickles: the file is data, not code)."""
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise SceneError(f"cannot read {path}: {err}") from None
+    if data.ndim != 2 or data.shape[1] != _ROW or data.shape[0] == 0:
+        raise SceneError(f"{path}: expected an [N, {_ROW}] array, got shape {list(data.shape)}")
+    return data.astype(np.float64)
+
+
+def read_llff(root: Path, images: str, background: tuple[float, float, float]) -> Scene:
+    data = load_poses_bounds(root / FILENAME)
+    folder = safe_path(root, images, "images folder")
+    if not folder.is_dir():
+        raise SceneError(f"{root}: no {images}/ folder beside {FILENAME}")
+    paths = find_images(folder)
+    if len(paths) != len(data):
+        raise SceneError(f"{root}: {FILENAME} has {len(data)} poses but {images}/ holds {len(paths)} images; "
+                         "LLFF needs exactly one image per pose (remove unregistered images)")
+    mats = torch.from_numpy(data[:, :15].reshape(-1, 3, 5))  # [N, 3, 5]
+    hwf = mats[:, :, 4]
+    K = torch.stack([intrinsics(float(f), float(f), 0.5 * float(w), 0.5 * float(h)) for h, w, f in hwf])
+    sizes = [(int(round(float(h))), int(round(float(w)))) for h, w, _ in hwf]
+    bounds = torch.from_numpy(data[:, 15:])
+    views = ReadViews(root=root, paths=paths, K=K, c2w=llff_to_opencv(mats[:, :, :4]), format="llff",
+                      sizes=sizes, near=bounds[:, 0], far=bounds[:, 1])
+    return assemble(views, background)
