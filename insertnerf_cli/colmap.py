@@ -1,0 +1,348 @@
+"""Camera poses from a folder of images with pycolmap, in process, on CPU. Every pycolmap call of insertnerf lives
+in this file; the API differences between pycolmap versions are absorbed by :func:`_cam_from_world`.
+
+Pipeline (``estimate_poses``): read and check the images -> SIFT features -> matching (exhaustive for small sets,
+sequential for long ones) -> incremental mapping, keeping the model with the most registered images -> a check of
+the poses against independent two-view estimates (:mod:`insertnerf_cli.posecheck`) -> undistortion to PINHOLE ->
+``transforms.json``, the COLMAP model, ``sparse.ply`` and ``cameras.ply``. Everything is written into a temporary
+folder beside the output and renamed into place at the end, so a failure never leaves half a scene.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator, Literal
+
+import numpy as np
+import pycolmap
+import torch
+
+from .cameras import Cameras
+from .errors import UserError
+from .posecheck import MIN_PAIR_INLIERS, PairMatches, PoseCheck, check_relative_poses
+from .poses_io import InputImages, ModelArrays, check_output, read_inputs, staging_folder, write_scene
+
+Report = Callable[[str], None]
+Matcher = Literal["auto", "exhaustive", "sequential"]
+
+# Under this fraction of registered images the result is probably not what the user wanted (nerfstudio's habit).
+WARN_REGISTERED_FRACTION = 0.8
+MIN_REGISTERED = 3
+_GENERAL_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.CALIBRATED,
+                    pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED)
+
+
+@dataclass(frozen=True)
+class PosesOptions:
+    """How ``estimate_poses`` runs.
+
+    Attributes:
+        matcher: "exhaustive" (every pair), "sequential" (neighbours in name order, for video frames) or "auto"
+            (exhaustive up to ``exhaustive_limit`` images, sequential above).
+        max_image_size: long side, pixels, that SIFT sees (CPU SIFT memory grows with the image size).
+        camera_model: COLMAP camera model fitted before undistortion (SIMPLE_RADIAL, RADIAL, OPENCV, PINHOLE).
+        num_threads: CPU threads; 0 = every core this process may use.
+        overwrite: replace an existing output folder.
+        verbose: let pycolmap print its own log.
+        max_check_deg: largest median disagreement (degrees) with two-view estimates accepted.
+        allow_inconsistent: only warn when the pose check fails (else it is an error).
+        check_pairs: at most this many image pairs are compared by the check.
+        exhaustive_limit: the "auto" matcher's switch point.
+        sequential_overlap: neighbours matched to each image by the sequential matcher.
+        seed: random seed of the mapper and of the check's pair sampling.
+    """
+
+    matcher: Matcher = "auto"
+    max_image_size: int = 1600
+    camera_model: str = "SIMPLE_RADIAL"
+    num_threads: int = 0
+    overwrite: bool = False
+    verbose: bool = False
+    max_check_deg: float = 2.0
+    allow_inconsistent: bool = False
+    check_pairs: int = 150
+    exhaustive_limit: int = 100
+    sequential_overlap: int = 10
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class StageTime:
+    name: str
+    seconds: float
+
+
+@dataclass(frozen=True)
+class PosesResult:
+    """What ``estimate_poses`` produced.
+
+    Attributes:
+        scene_dir: the output folder.
+        registered: names of the N registered images, in camera order (sorted by name).
+        unregistered: names of the input images COLMAP could not place.
+        cameras: N undistorted PINHOLE cameras, OpenCV c2w, in COLMAP's world (arbitrary scale).
+        near, far: [N] per-view bounds from the depths of the points each image sees.
+        num_points: sparse points in the model.
+        mean_reprojection_error: pixels.
+        check: agreement with independent two-view estimates.
+        matcher: the matcher that ran.
+        stages: wall time per stage.
+    """
+
+    scene_dir: Path
+    registered: tuple[str, ...]
+    unregistered: tuple[str, ...]
+    cameras: Cameras
+    near: torch.Tensor  # [N]
+    far: torch.Tensor  # [N]
+    num_points: int
+    mean_reprojection_error: float
+    check: PoseCheck
+    matcher: str
+    stages: tuple[StageTime, ...]
+
+    @property
+    def registered_fraction(self) -> float:
+        return len(self.registered) / (len(self.registered) + len(self.unregistered))
+
+    def summary(self) -> str:
+        total = len(self.registered) + len(self.unregistered)
+        return (f"{len(self.registered)}/{total} images registered, {self.num_points} points, mean reprojection "
+                f"error {self.mean_reprojection_error:.2f} px; scene written to {self.scene_dir}")
+
+
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+class _Stages:
+    """One line when a stage starts, one when it ends (counts, elapsed seconds), throttled counts in between."""
+
+    def __init__(self, report: Report, total: int) -> None:
+        self.report, self.total, self.index, self.times = report, total, 0, []
+        self._name, self._t0, self._last_tick = "", 0.0, 0.0
+
+    def start(self, name: str, detail: str) -> None:
+        self.index += 1
+        self._name, self._t0 = name, time.perf_counter()
+        self._last_tick = self._t0
+        self.report(f"[{self.index}/{self.total}] {name}: {detail}")
+
+    def tick(self, done: int, total: int, what: str, every_s: float = 5.0) -> None:
+        now = time.perf_counter()
+        if now - self._last_tick < every_s or done <= 0:
+            return
+        self._last_tick = now
+        elapsed = now - self._t0
+        eta = elapsed / done * max(total - done, 0)
+        self.report(f"      {done}/{total} {what}, {elapsed:.0f} s elapsed, ~{eta:.0f} s left")
+
+    def done(self, detail: str) -> None:
+        seconds = time.perf_counter() - self._t0
+        self.times.append(StageTime(self._name, seconds))
+        self.report(f"      {detail} ({seconds:.1f} s)")
+
+
+@contextmanager
+def _pycolmap_log(verbose: bool) -> Iterator[None]:
+    """Quiet pycolmap's glog (errors only) unless verbose; restore the previous level afterwards."""
+    previous = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 0 if verbose else 3
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = previous
+
+
+def _cam_from_world(image: "pycolmap.Image") -> np.ndarray:
+    """World-to-camera [3, 4] of a registered image. pycolmap >= 3.12 made ``cam_from_world`` a method."""
+    pose = image.cam_from_world
+    pose = pose() if callable(pose) else pose
+    return np.asarray(pose.matrix(), dtype=np.float64)
+
+
+def _num_threads(requested: int) -> int:
+    if requested > 0:
+        return requested
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
+                   options: PosesOptions = PosesOptions(), report: Report = _stderr) -> PosesResult:
+    """Estimate camera poses of the images in ``images_dir`` and write a posed scene folder to ``out_dir``.
+
+    Writes ``images/`` (undistorted), ``transforms.json`` (nerfstudio / instant-ngp: OpenGL c2w, relative paths,
+    per-frame ``near``/``far``), ``colmap/sparse/0`` (the undistorted PINHOLE model), ``colmap/database.db``,
+    ``sparse.ply`` and ``cameras.ply``. Progress lines go to ``report``.
+
+    Raises:
+        UserError: fewer than 3 images, unreadable or mixed-size images, an existing output without overwrite,
+            no model, fewer than 3 registered images, or poses that contradict the two-view check.
+    """
+    images_dir, out_dir = Path(images_dir), Path(out_dir)
+    check_output(images_dir, out_dir, options.overwrite)
+    stages = _Stages(report, total=6)
+    stages.start("reading images", str(images_dir))
+    with staging_folder(out_dir) as tmp, _pycolmap_log(options.verbose):
+        inputs = read_inputs(images_dir, tmp / "colmap" / "upright")
+        stages.done(f"{len(inputs.names)} images of {inputs.width}x{inputs.height}")
+        work = tmp / "colmap"
+        matcher = _run_features_and_matching(inputs, work / "database.db", options, stages)
+        rec, model_dir = _run_mapping(inputs, work, options, stages)
+        check = _run_check(rec, work / "database.db", options, stages)
+        stages.start("writing the scene", "undistorting to PINHOLE")
+        undistorted = _undistort(model_dir, inputs.folder, tmp)
+        shutil.rmtree(work / "mapping")
+        scene = write_scene(tmp, _model_arrays(undistorted))
+        stages.done(f"{len(scene.names)} images, transforms.json, sparse.ply, cameras.ply")
+    registered = set(scene.names)
+    result = PosesResult(out_dir, tuple(scene.names), tuple(n for n in inputs.names if n not in registered),
+                         scene.cameras, scene.near, scene.far, scene.num_points,
+                         float(rec.compute_mean_reprojection_error()), check, matcher, tuple(stages.times))
+    _report_result(result, report)
+    return result
+
+
+def _report_result(result: PosesResult, report: Report) -> None:
+    if result.unregistered:
+        shown = ", ".join(result.unregistered[:10]) + (" ..." if len(result.unregistered) > 10 else "")
+        report(f"not registered ({len(result.unregistered)}): {shown}")
+    if result.registered_fraction < WARN_REGISTERED_FRACTION:
+        report(f"warning: only {100 * result.registered_fraction:.0f} % of the images were registered; blur, "
+               "little overlap between views or textureless surfaces are the usual causes.")
+
+
+def _run_features_and_matching(inputs: InputImages, db_path: Path, options: PosesOptions,
+                               stages: _Stages) -> str:
+    """SIFT features and matches into ``db_path``; returns the matcher used."""
+    threads = _num_threads(options.num_threads)
+    stages.start("extracting SIFT features", f"{len(inputs.names)} images, long side capped at "
+                 f"{options.max_image_size} px, {threads} threads")
+    db_path.parent.mkdir(parents=True, exist_ok=True)
+    extraction = pycolmap.FeatureExtractionOptions(max_image_size=options.max_image_size, num_threads=threads)
+    pycolmap.extract_features(db_path, inputs.folder, image_names=list(inputs.names),
+                              camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=pycolmap.ImageReaderOptions(camera_model=options.camera_model),
+                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    with pycolmap.Database.open(db_path) as db:
+        stages.done(f"{db.num_keypoints()} keypoints in {db.num_images()} images")
+    matcher = options.matcher
+    if matcher == "auto":
+        matcher = "exhaustive" if len(inputs.names) <= options.exhaustive_limit else "sequential"
+    stages.start("matching", f"{matcher} matcher")
+    matching = pycolmap.FeatureMatchingOptions(num_threads=threads)
+    if matcher == "exhaustive":
+        pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+    else:
+        pairing = pycolmap.SequentialPairingOptions(overlap=options.sequential_overlap, quadratic_overlap=True)
+        pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
+                                  device=pycolmap.Device.cpu)
+    with pycolmap.Database.open(db_path) as db:
+        stages.done(f"{db.num_verified_image_pairs()} of {db.num_matched_image_pairs()} matched pairs verified")
+    return matcher
+
+
+def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
+                 stages: _Stages) -> tuple["pycolmap.Reconstruction", Path]:
+    """Incremental mapping; the model with the most registered images and its folder."""
+    n = len(inputs.names)
+    stages.start("mapping", f"incremental, {n} images")
+    registered = [0]
+
+    def on_image() -> None:
+        registered[0] += 1
+        stages.tick(min(registered[0], n), n, "images registered")
+
+    mapping = pycolmap.IncrementalPipelineOptions(num_threads=_num_threads(options.num_threads),
+                                                  random_seed=options.seed, min_model_size=MIN_REGISTERED)
+    (work / "mapping").mkdir(parents=True, exist_ok=True)
+    models = pycolmap.incremental_mapping(work / "database.db", inputs.folder, work / "mapping", options=mapping,
+                                          next_image_callback=on_image)
+    if not models:  # pycolmap logs "Failed to create any sparse model" and returns {} without raising
+        raise UserError(f"COLMAP could not build any model from the {n} images in {inputs.source}: they share too "
+                        "few matching features; use overlapping, sharp, textured photos of one scene.")
+    best = max(models, key=lambda k: models[k].num_reg_images())
+    rec = models[best]
+    if rec.num_reg_images() < MIN_REGISTERED:
+        raise UserError(f"only {rec.num_reg_images()} of {n} images could be registered (need at least "
+                        f"{MIN_REGISTERED}); use more overlapping, sharp, textured photos of one scene.")
+    others = sorted((m.num_reg_images() for k, m in models.items() if k != best), reverse=True)
+    stages.done(f"{rec.num_reg_images()}/{n} registered, {rec.num_points3D()} points, "
+                f"{rec.compute_mean_reprojection_error():.2f} px" + (f"; other models dropped: {others}" if others else ""))
+    return rec, work / "mapping" / str(best)
+
+
+def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, options: PosesOptions, stages: _Stages) -> PoseCheck:
+    stages.start("checking poses", "relative poses vs independent two-view estimates")
+    check = check_relative_poses(_pair_matches(db_path, rec, options.check_pairs, options.seed),
+                                 options.max_check_deg)
+    stages.done(check.summary())
+    if not check.passed:
+        message = (f"the poses disagree with independent two-view estimates ({check.summary()}; limit "
+                   f"{check.max_median_deg:g} deg): repeated texture or symmetric scenes can fool SfM")
+        if not options.allow_inconsistent:
+            raise UserError(message + "; inspect cameras.ply, or pass --allow-inconsistent to keep them anyway.")
+        stages.report(f"warning: {message}.")
+    return check
+
+
+def _pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int, seed: int) -> list[PairMatches]:
+    """Raw matches (normalised coordinates) and model relative poses of up to ``max_pairs`` registered pairs."""
+    poses = {i: _cam_from_world(img) for i, img in rec.images.items() if img.has_pose}
+    with pycolmap.Database.open(db_path) as db:
+        pair_ids, geometries = db.read_two_view_geometries()
+        # Planar or pure-rotation pairs have no unique essential matrix: COLMAP's classification excludes them.
+        pairs = [pycolmap.pair_id_to_image_pair(p) for p, g in zip(pair_ids, geometries)
+                 if len(g.inlier_matches) >= MIN_PAIR_INLIERS and g.config in _GENERAL_CONFIGS]
+        pairs = [(a, b) for a, b in pairs if a in poses and b in poses]
+        if len(pairs) > max_pairs:  # a spread-out sample; every pair would cost seconds on large sets
+            pick = np.random.default_rng(seed).choice(len(pairs), size=max_pairs, replace=False)
+            pairs = [pairs[i] for i in sorted(pick)]
+        out = []
+        for a, b in pairs:
+            matches = db.read_matches(a, b).astype(np.int64)  # [M, 2]
+            cams = rec.images[a].camera, rec.images[b].camera
+            pts = [cam.cam_from_img(db.read_keypoints(i)[idx, :2].astype(np.float64))
+                   for cam, i, idx in zip(cams, (a, b), matches.T)]
+            r1, t1, r2, t2 = poses[a][:, :3], poses[a][:, 3], poses[b][:, :3], poses[b][:, 3]
+            rot = r2 @ r1.T
+            out.append(PairMatches((rec.images[a].name, rec.images[b].name), pts[0], pts[1], rot,
+                                   t2 - rot @ t1, float(cams[0].mean_focal_length())))
+    return out
+
+
+def _undistort(model_dir: Path, image_dir: Path, tmp: Path) -> "pycolmap.Reconstruction":
+    """Undistort images and model to PINHOLE; move them to ``tmp/images`` and ``tmp/colmap/sparse/0``."""
+    staging = tmp / "colmap" / "undistorted"
+    pycolmap.undistort_images(staging, model_dir, image_dir)
+    os.replace(staging / "images", tmp / "images")
+    (tmp / "colmap" / "sparse").mkdir(parents=True, exist_ok=True)
+    os.replace(staging / "sparse", tmp / "colmap" / "sparse" / "0")
+    shutil.rmtree(staging)
+    return pycolmap.Reconstruction(tmp / "colmap" / "sparse" / "0")
+
+
+def _model_arrays(rec: "pycolmap.Reconstruction") -> ModelArrays:
+    """Registered images (sorted by name), their cameras and the points each sees, as plain arrays."""
+    images = sorted((img for img in rec.images.values() if img.has_pose), key=lambda img: img.name)
+    sizes = {(img.camera.height, img.camera.width) for img in images}
+    if len(sizes) != 1:
+        raise UserError(f"the undistorted cameras have {len(sizes)} different image sizes {sorted(sizes)}; "
+                        "resize the input images to one size and run again.")
+    point_ids = np.array(sorted(rec.points3D), dtype=np.int64)
+    index = {int(pid): i for i, pid in enumerate(point_ids)}
+    xyz = np.array([rec.points3D[int(p)].xyz for p in point_ids], dtype=np.float64).reshape(-1, 3)
+    rgb = np.array([rec.points3D[int(p)].color for p in point_ids], dtype=np.uint8).reshape(-1, 3)
+    seen = [np.array([index[p.point3D_id] for p in img.get_observation_points2D()], dtype=np.int64)
+            for img in images]
+    (height, width), = sizes
+    return ModelArrays(names=tuple(img.name for img in images),
+                       K=np.stack([img.camera.calibration_matrix() for img in images]),
+                       w2c=np.stack([_cam_from_world(img) for img in images]), height=height, width=width,
+                       image_ids=tuple(int(img.image_id) for img in images), xyz=xyz, rgb=rgb, seen=seen)

@@ -1,0 +1,192 @@
+"""Files around `insertnerf poses` (no pycolmap here): checking the input images and the output folder, the
+temporary folder renamed into place, and the scene files written from a finished model."""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+import torch
+
+from .cameras import Cameras
+from .errors import UserError
+from .preview import write_camera_frustums, write_point_cloud
+from .scenes.base import SceneError
+from .scenes.images import IMAGE_EXTENSIONS, exif_orientation, find_images, read_rgb
+from .scenes.writers import write_nerfstudio_transforms
+
+MIN_IMAGES = 3
+# LLFF's habit: near/far are the 0.1 and 99.9 percentiles of the depths of the points an image sees.
+DEPTH_PERCENTILES = (0.1, 99.9)
+
+
+@dataclass(frozen=True)
+class InputImages:
+    """The checked input images.
+
+    Attributes:
+        source: the user's folder.
+        folder: where SfM reads them (``source``, or upright copies when some carry an EXIF rotation).
+        names: file names, sorted.
+        height, width: the common image size (after EXIF orientation).
+    """
+
+    source: Path
+    folder: Path
+    names: tuple[str, ...]
+    height: int
+    width: int
+
+
+@dataclass(frozen=True)
+class ModelArrays:
+    """A finished (undistorted) model as plain arrays; N registered images sorted by name, P points.
+
+    Attributes:
+        names, image_ids: [N] image names and COLMAP image ids.
+        K: [N, 3, 3] pinhole intrinsics; w2c: [N, 3, 4] world-to-camera (OpenCV axes).
+        height, width: image size of every camera.
+        xyz: [P, 3] points; rgb: [P, 3] uint8 colours.
+        seen: N index arrays [k_i] into the points, the points each image observes.
+    """
+
+    names: tuple[str, ...]
+    image_ids: tuple[int, ...]
+    K: np.ndarray  # [N, 3, 3]
+    w2c: np.ndarray  # [N, 3, 4]
+    height: int
+    width: int
+    xyz: np.ndarray  # [P, 3]
+    rgb: np.ndarray  # [P, 3]
+    seen: list[np.ndarray]
+
+
+@dataclass(frozen=True)
+class WrittenScene:
+    names: tuple[str, ...]
+    cameras: Cameras
+    near: torch.Tensor  # [N]
+    far: torch.Tensor  # [N]
+    num_points: int
+
+
+def check_output(images_dir: Path, out_dir: Path, overwrite: bool) -> None:
+    """Refuse an output folder that exists (without ``overwrite``) or that would swallow the input images."""
+    images, out = images_dir.resolve(), out_dir.resolve()
+    if images == out or out in images.parents:
+        raise UserError(f"the output folder {out_dir} contains the input images {images_dir}; "
+                        "choose another --out (replacing it would delete your photos).")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out_dir} exists and is not a folder; choose another --out.")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise UserError(f"{out_dir} already exists; pass --overwrite to replace it, or choose another --out.")
+
+
+@contextmanager
+def staging_folder(out_dir: Path) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``, else it is removed."""
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+    try:
+        yield tmp
+        _swap_into_place(tmp, out_dir)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _swap_into_place(tmp: Path, out_dir: Path) -> None:
+    """Rename ``tmp`` onto ``out_dir``; an existing ``out_dir`` is set aside first and deleted only afterwards."""
+    if not out_dir.exists():
+        os.replace(tmp, out_dir)
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
+    os.replace(out_dir, old / out_dir.name)
+    try:
+        os.replace(tmp, out_dir)
+    except OSError:
+        os.replace(old / out_dir.name, out_dir)  # put the previous output back
+        raise
+    finally:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def read_inputs(images_dir: Path, upright_dir: Path) -> InputImages:
+    """Find and decode every image; refuse too few, unreadable or mixed-size sets.
+
+    Images with an EXIF rotation are written upright to ``upright_dir`` (COLMAP ignores the tag) so that the
+    poses, the undistorted images and every later reader see the same pixels.
+    """
+    paths = find_images(images_dir)
+    if len(paths) < MIN_IMAGES:
+        raise UserError(f"found {len(paths)} image(s) in {images_dir} (extensions {', '.join(IMAGE_EXTENSIONS)}); "
+                        f"need at least {MIN_IMAGES} overlapping photos of one scene.")
+    sizes: dict[tuple[int, int], list[str]] = {}
+    unreadable, rotated = [], []
+    for path in paths:
+        try:
+            h, w = read_rgb(path).shape[:2]
+        except SceneError:
+            unreadable.append(path.name)
+            continue
+        sizes.setdefault((h, w), []).append(path.name)
+        if exif_orientation(path) != 1:
+            rotated.append(path)
+    if unreadable:
+        raise UserError(f"cannot read {len(unreadable)} file(s) in {images_dir}: {', '.join(unreadable[:10])}"
+                        f"{' ...' if len(unreadable) > 10 else ''}; remove or re-export them.")
+    if len(sizes) > 1:
+        listed = "; ".join(f"{w}x{h}: {len(n)} (e.g. {n[0]})" for (h, w), n in sizes.items())
+        raise UserError(f"the images in {images_dir} have {len(sizes)} different sizes ({listed}); one camera "
+                        "is assumed, so resize them to one size first.")
+    (height, width), = sizes
+    folder = _write_upright(paths, upright_dir) if rotated else images_dir
+    return InputImages(images_dir, folder, tuple(p.name for p in paths), height, width)
+
+
+def _write_upright(paths: list[Path], folder: Path) -> Path:
+    """Copies of every image with the EXIF orientation applied to the pixels (8-bit, same names)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for path in paths:
+        rgb = (read_rgb(path) * 255.0 + 0.5).astype(np.uint8)
+        if not cv2.imwrite(str(folder / path.name), rgb[..., ::-1]):
+            raise UserError(f"cannot write an upright copy of {path.name} to {folder}; check free disk space.")
+    return folder
+
+
+def _depth_bounds(model: ModelArrays) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-image near/far [N]: percentiles of the depths of the points each image sees."""
+    all_near, all_far = [], []
+    for w2c, seen in zip(model.w2c, model.seen):
+        depth = (model.xyz[seen] @ w2c[:, :3].T + w2c[:, 3])[:, 2]  # [k]
+        depth = depth[depth > 0]
+        lo, hi = np.percentile(depth, DEPTH_PERCENTILES) if depth.size else (np.nan, np.nan)
+        all_near.append(lo)
+        all_far.append(hi)
+    near, far = np.array(all_near), np.array(all_far)
+    # A registered image always sees points; the fallback only guards against a degenerate model.
+    near = np.where(np.isfinite(near), near, np.nanmin(near) if np.isfinite(near).any() else 0.1)
+    far = np.where(np.isfinite(far), far, np.nanmax(far) if np.isfinite(far).any() else 100.0)
+    return torch.from_numpy(near), torch.from_numpy(far)
+
+
+def write_scene(root: Path, model: ModelArrays) -> WrittenScene:
+    """transforms.json, sparse.ply and cameras.ply for the undistorted model (its images are in root/images)."""
+    n = len(model.names)
+    w2c = np.zeros((n, 4, 4))
+    w2c[:, :3], w2c[:, 3, 3] = model.w2c, 1.0
+    cameras = Cameras.from_w2c(torch.from_numpy(model.K.astype(np.float64)), torch.from_numpy(w2c),
+                               model.height, model.width)
+    near, far = _depth_bounds(model)
+    write_nerfstudio_transforms(root / "transforms.json", cameras, [f"images/{name}" for name in model.names],
+                                near=near, far=far,
+                                extra={"ply_file_path": "sparse.ply", "colmap_model": "colmap/sparse/0"},
+                                frame_extras=[{"colmap_im_id": i} for i in model.image_ids])
+    write_point_cloud(root / "sparse.ply", model.xyz, model.rgb)
+    write_camera_frustums(root / "cameras.ply", cameras)
+    return WrittenScene(model.names, cameras, near, far, len(model.xyz))
