@@ -1,8 +1,65 @@
-"""`insertnerf train` (being built)."""
+"""`insertnerf train`: train the generator on a folder of scenes."""
+from __future__ import annotations
+
+from pathlib import Path
+
 import click
+
+from ..training import TrainConfig, train as train_generator
+from ..training.config import read_model_config, saved_train_config, with_overrides
+from ..training.run_dir import RunFiles
+from .common import device_option, overwrite_option, resolve_device, user_errors
 
 
 @click.command("train")
-def train() -> None:
-    """Not built yet."""
-    raise click.ClickException("insertnerf train is not built yet in this version.")
+@click.argument("dataset_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "run_dir", type=click.Path(path_type=Path), required=True,
+              help="Run folder: metrics.jsonl, splits.json, checkpoints/last.pt, best.pt and config.json.")
+@click.option("--steps", type=int, help="Total optimisation steps of the run.  [default: 50000]")
+@click.option("--minutes", type=float, help="Stop and save after this much training wall time in total.")
+@device_option
+@click.option("--resume", is_flag=True, help="Continue the run in --out exactly where its last checkpoint stopped.")
+@click.option("--conditioning", type=click.Choice(["hyper", "concat"]),
+              help="HyperNet modules (InsertNeRF) or plain feature concatenation (the ablation).  [default: hyper]")
+@click.option("--rays", type=int, help="Rays per step.  [default: 512]")
+@click.option("--views", type=int, help="Source views per step.  [default: 8]")
+@click.option("--resolution", type=int, help="Long side of the training images in pixels.  [default: 160]")
+@click.option("--lr", type=float, help="Initial learning rate of the NeRF part (the encoder's is twice it by "
+              "default).  [default: 5e-4]")
+@click.option("--val-every", type=int, help="Steps between validations.  [default: 500]")
+@click.option("--ckpt-every", type=int, help="Steps between checkpoints.  [default: 1000]")
+@click.option("--log-every", type=int, help="Steps averaged into one line of metrics.jsonl.  [default: 10]")
+@click.option("--seed", type=int, help="Seed of the initialisation, the data draws and the hold-out split.")
+@click.option("--model-config", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="JSON file of ModelConfig fields (or a run's checkpoints/config.json).")
+@overwrite_option
+@user_errors
+def train(dataset_dir: Path, run_dir: Path, device: str, resume: bool, overwrite: bool,
+          model_config: Path | None, **flags: object) -> None:
+    """Train the InsertNeRF generator on the scenes in DATASET_DIR (scene folders in any format `render`
+    reads, mixed; a few are held out for validation). Ctrl-C saves a checkpoint; --resume continues.
+
+    \b
+    Examples:
+      insertnerf synth data/ --scenes 200
+      insertnerf train data/ --out runs/hyper --minutes 30
+      insertnerf train data/ --out runs/hyper --resume --steps 100000
+      torchrun --no-python --nproc_per_node 4 insertnerf train data/ --out runs/big --device cuda
+    """
+    torch_device = resolve_device(device)
+    base = saved_train_config(RunFiles(run_dir).last) if resume else TrainConfig()
+    model_fields = {"conditioning": flags.pop("conditioning"), "num_views": flags.pop("views")}
+    if flags["lr"] is not None:
+        flags["lr_encoder"] = 2.0 * flags["lr"]  # keep GNT's ratio between the extractor and the rest
+    if model_config is not None:
+        base = with_overrides(base, {}, {"model": read_model_config(model_config)})
+    config = with_overrides(base, model_fields, {name.replace("-", "_"): value for name, value in flags.items()})
+    result = train_generator(dataset_dir, run_dir, config, torch_device, resume=resume, overwrite=overwrite)
+    val = "n/a" if result.val_psnr is None else f"{result.val_psnr:.2f} dB"
+    speed = "" if result.rays_per_s is None else f", {result.rays_per_s:,.0f} rays/s"
+    click.echo(f"{result.stopped}: step {result.step} ({result.steps_this_session} this session, "
+               f"{result.elapsed_s / 60:.1f} min in total{speed}); validation PSNR {val}; "
+               f"checkpoint {result.checkpoint}")
+    if result.stopped == "interrupted":
+        click.echo(f"Continue with: insertnerf train {dataset_dir} --out {run_dir} --resume", err=True)
+        raise SystemExit(130)

@@ -1,0 +1,167 @@
+"""Checkpoints: the model's weights, its config as JSON and (for training runs) the state needed to resume.
+
+A checkpoint holds tensors and plain Python types only, so it loads with ``torch.load(weights_only=True)``
+and loading one cannot run code. It is written to a temporary file and renamed, so an interrupt never
+leaves a half-written checkpoint under the final name. The model is always rebuilt from the config stored
+in the checkpoint, never from command-line flags.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from . import __version__
+from .atomic import atomic_path
+from .config import ModelConfig, config_from_json, config_to_json
+from .errors import UserError
+
+CHECKPOINT_FORMAT = "insertnerf-checkpoint"
+CHECKPOINT_VERSION = 1
+BUNDLED_NAME = "insertnerf.pt"
+
+
+@dataclass(frozen=True)
+class TrainState:
+    """What a training run needs besides the weights to continue exactly where it stopped.
+
+    Attributes:
+        step: optimisation steps done.
+        elapsed_s: wall time spent training so far, summed over resumed sessions.
+        optimizer: ``optimizer.state_dict()`` (tensors and plain types).
+        rng: random-generator states as tensors (python, numpy, torch, data sampler).
+        train_config: the run's TrainConfig as a JSON string.
+        best_val_psnr: best validation PSNR so far (dB), or None before the first validation.
+    """
+
+    step: int
+    elapsed_s: float
+    optimizer: dict[str, Any]
+    rng: dict[str, Tensor]
+    train_config: str
+    best_val_psnr: float | None = None
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A checkpoint read from disk and checked."""
+
+    path: Path
+    version: int
+    model_config: ModelConfig
+    model_state: dict[str, Tensor]
+    train_state: TrainState | None
+
+
+def save_checkpoint(path: str | Path, model: nn.Module, model_config: ModelConfig,
+                    train_state: TrainState | None = None) -> Path:
+    """Write ``model``'s weights, its config and optionally a TrainState to ``path`` atomically.
+
+    Args:
+        model: the InsertNeRF (unwrapped from DistributedDataParallel by the caller).
+        model_config: the config the model was built from; stored as JSON.
+    Returns:
+        the path written.
+    """
+    payload: dict[str, Any] = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "insertnerf_version": __version__,
+        "model_config": config_to_json(model_config),  # a dict of plain types
+        "model": {name: t.detach().cpu() for name, t in model.state_dict().items()},
+    }
+    if train_state is not None:
+        payload["train"] = {
+            "step": int(train_state.step),
+            "elapsed_s": float(train_state.elapsed_s),
+            "optimizer": train_state.optimizer,
+            "rng": {name: t.detach().cpu() for name, t in train_state.rng.items()},
+            "train_config": train_state.train_config,
+            "best_val_psnr": None if train_state.best_val_psnr is None else float(train_state.best_val_psnr),
+        }
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return path
+
+
+def read_checkpoint(path: str | Path) -> Checkpoint:
+    """Load and check a checkpoint (CPU tensors); anything wrong with it becomes a one-line UserError."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"checkpoint {path} does not exist; pass the .pt file written by `insertnerf train`.")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises several types for truncated, non-zip or unsafe files
+        raise UserError(f"checkpoint {path} cannot be read ({_one_line(err)}); it is corrupt or not an "
+                        "insertnerf checkpoint: pass another one, or retrain.") from None
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise UserError(f"{path} is not an insertnerf checkpoint (no '{CHECKPOINT_FORMAT}' marker).")
+    version = payload.get("version")
+    if not isinstance(version, int) or version > CHECKPOINT_VERSION:
+        raise UserError(f"checkpoint {path} has format version {version!r}, this insertnerf {__version__} reads "
+                        f"up to {CHECKPOINT_VERSION}: upgrade insertnerf or retrain.")
+    try:
+        config = config_from_json(ModelConfig, payload["model_config"])
+        state = payload["model"]
+        train = payload.get("train")
+        train_state = None if train is None else TrainState(**train)
+    except Exception as err:
+        raise UserError(f"checkpoint {path} was written by an incompatible insertnerf version "
+                        f"({_one_line(err)}); retrain it with this version.") from None
+    return Checkpoint(path, version, config, state, train_state)
+
+
+def build_model(checkpoint: Checkpoint, device: torch.device) -> nn.Module:
+    """The InsertNeRF described by the checkpoint's config, with its weights, on ``device``."""
+    from .model import InsertNeRF  # the model package imports torch modules; load it only when needed
+
+    try:
+        model = InsertNeRF(checkpoint.model_config)
+    except Exception as err:
+        raise UserError(f"checkpoint {checkpoint.path} describes a model this version cannot build "
+                        f"({_one_line(err)}); retrain it with this version.") from None
+    load_weights(model, checkpoint)
+    return model.to(device)
+
+
+def load_weights(model: nn.Module, checkpoint: Checkpoint) -> None:
+    """Copy the checkpoint's weights into ``model``; a mismatch in names or shapes becomes a UserError."""
+    own = model.state_dict()
+    theirs = checkpoint.model_state
+    missing = sorted(set(own) - set(theirs))
+    unexpected = sorted(set(theirs) - set(own))
+    reshaped = sorted(n for n in set(own) & set(theirs) if own[n].shape != theirs[n].shape)
+    if missing or unexpected or reshaped:
+        example = (missing or unexpected or reshaped)[0]
+        raise UserError(f"checkpoint {checkpoint.path} does not fit the model its config describes "
+                        f"({len(missing)} missing, {len(unexpected)} unexpected, {len(reshaped)} reshaped "
+                        f"tensors, e.g. {example!r}); it comes from an incompatible version: retrain it.")
+    model.load_state_dict(theirs)
+
+
+def load_model(path: str | Path, device: torch.device) -> tuple[nn.Module, ModelConfig]:
+    """Rebuild the model from a checkpoint's own config and load its weights, in eval mode on ``device``."""
+    checkpoint = read_checkpoint(path)
+    model = build_model(checkpoint, device)
+    model.eval()
+    return model, checkpoint.model_config
+
+
+def bundled_checkpoint() -> Path:
+    """The pretrained generator shipped in the package (insertnerf_cli/weights/insertnerf.pt)."""
+    path = Path(__file__).resolve().parent / "weights" / BUNDLED_NAME
+    if not path.is_file():
+        raise UserError(f"this install has no bundled pretrained weights ({path} is missing); pass "
+                        "--checkpoint RUN_DIR/checkpoints/last.pt from `insertnerf train`.")
+    return path
+
+
+def _one_line(err: BaseException) -> str:
+    """The first line of an exception message, shortened, for a one-line user error."""
+    lines = str(err).strip().splitlines()
+    first = lines[0] if lines else type(err).__name__
+    return first[:160]

@@ -1,0 +1,112 @@
+"""TrainConfig: every knob of a training run, saved as JSON beside its checkpoints."""
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..config import ModelConfig, config_from_json
+from ..errors import UserError
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A training run. The number of source views per step is ``model.num_views``.
+
+    Attributes:
+        model: the generator's config (stored in every checkpoint).
+        steps: total optimisation steps (over all resumed sessions).
+        minutes: total wall-time budget in minutes (over all resumed sessions), or None for no limit.
+        rays: rays per step, drawn from one target view.
+        lr, lr_encoder: Adam learning rates of the NeRF part and of the U-Net encoder (GNT: 5e-4 / 1e-3).
+        lr_half_life: steps after which both rates have halved (smooth exponential decay).
+        lr_min: floor of the decayed rates.
+        resolution: long side in pixels of the training images (aspect ratio kept).
+        val_every: steps between validations; val_scenes held-out scenes (at most half of the dataset),
+            each validated on val_rays rays of one unseen view.
+        ckpt_every: steps between checkpoints (one is also written at the end and on Ctrl-C).
+        log_every: steps averaged into one line of metrics.jsonl.
+        seed: seeds the model initialisation, the data draws and the hold-out split.
+        cache_mb: memory budget of the image cache (uint8 images at the training resolution).
+    """
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    steps: int = 50_000
+    minutes: float | None = None
+    rays: int = 512
+    lr: float = 5e-4
+    lr_encoder: float = 1e-3
+    lr_half_life: int = 50_000
+    lr_min: float = 1e-5
+    resolution: int = 160
+    val_every: int = 500
+    val_scenes: int = 4
+    val_rays: int = 1024
+    ckpt_every: int = 1000
+    log_every: int = 10
+    seed: int = 0
+    cache_mb: int = 1024
+
+    def __post_init__(self) -> None:
+        positive = ("steps", "rays", "lr_half_life", "resolution", "val_every", "val_rays", "ckpt_every",
+                    "log_every", "cache_mb")
+        bad = [name for name in positive if getattr(self, name) < 1]
+        if bad:
+            raise UserError(f"training settings must be positive: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")
+        if self.minutes is not None and self.minutes <= 0:
+            raise UserError(f"--minutes must be positive, got {self.minutes}")
+        if min(self.lr, self.lr_encoder) <= 0 or self.lr_min < 0 or self.val_scenes < 0:
+            raise UserError("learning rates must be positive, lr_min and val_scenes >= 0")
+
+    def learning_rate(self, base: float, step: int) -> float:
+        """base * 0.5 ** (step / lr_half_life), not below lr_min (method.md section 9)."""
+        return max(base * 0.5 ** (step / self.lr_half_life), min(self.lr_min, base))
+
+
+# Changing these on --resume keeps training valid but the run no longer matches an uninterrupted one.
+DATA_FIELDS = ("rays", "resolution", "seed", "lr", "lr_encoder", "lr_half_life", "lr_min", "val_scenes")
+
+
+def with_overrides(config: TrainConfig, model: dict[str, Any], train: dict[str, Any]) -> TrainConfig:
+    """``config`` with the given ModelConfig and TrainConfig fields replaced (None values are ignored).
+
+    A ``train["model"]`` replaces the whole model config before the single ``model`` fields are applied.
+    """
+    train_changes = {k: v for k, v in train.items() if v is not None}
+    base_model = train_changes.pop("model", config.model)
+    try:
+        new_model = dataclasses.replace(base_model, **{k: v for k, v in model.items() if v is not None})
+    except (TypeError, ValueError) as err:
+        raise UserError(f"invalid model setting: {err}") from None
+    return dataclasses.replace(config, model=new_model, **train_changes)
+
+
+def model_differences(a: ModelConfig, b: ModelConfig) -> list[str]:
+    """'name: a -> b' for every ModelConfig field that differs."""
+    return [f"{f.name}: {getattr(a, f.name)!r} -> {getattr(b, f.name)!r}"
+            for f in dataclasses.fields(ModelConfig) if getattr(a, f.name) != getattr(b, f.name)]
+
+
+def read_model_config(path: Path) -> ModelConfig:
+    """A ModelConfig from a JSON file: its fields, or a run's checkpoints/config.json (its "model" entry)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        raise UserError(f"model config {path} cannot be read as JSON ({err}).") from None
+    if isinstance(data, dict) and isinstance(data.get("model"), dict):
+        data = data["model"]
+    return config_from_json(ModelConfig, data)
+
+
+def saved_train_config(checkpoint_path: Path) -> TrainConfig:
+    """The TrainConfig stored in a run's checkpoint (the base that --resume overrides with given flags)."""
+    from ..checkpoint import read_checkpoint  # checkpoint imports the model package; keep config light
+
+    if not Path(checkpoint_path).is_file():
+        raise UserError(f"nothing to resume: {checkpoint_path} does not exist; start a new run without --resume.")
+    state = read_checkpoint(checkpoint_path).train_state
+    if state is None:
+        raise UserError(f"{checkpoint_path} holds weights only (no optimizer or step); it cannot be resumed.")
+    return config_from_json(TrainConfig, json.loads(state.train_config))

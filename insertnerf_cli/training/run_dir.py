@@ -1,0 +1,119 @@
+"""The files of a training run:
+
+    RUN_DIR/metrics.jsonl           one JSON object per line (training averages and validations)
+    RUN_DIR/splits.json             which scenes trained and which were held out
+    RUN_DIR/checkpoints/last.pt     the latest checkpoint (weights, model config, optimizer, step, RNG)
+    RUN_DIR/checkpoints/best.pt     the checkpoint with the best validation PSNR so far
+    RUN_DIR/checkpoints/config.json the model and training configs, for people and scripts to read
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..atomic import atomic_path, write_json
+from ..config import config_to_json
+from ..errors import UserError
+from .config import TrainConfig
+
+
+@dataclass(frozen=True)
+class RunFiles:
+    root: Path
+
+    @property
+    def metrics(self) -> Path:
+        return self.root / "metrics.jsonl"
+
+    @property
+    def splits(self) -> Path:
+        return self.root / "splits.json"
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.root / "checkpoints"
+
+    @property
+    def last(self) -> Path:
+        return self.checkpoints / "last.pt"
+
+    @property
+    def best(self) -> Path:
+        return self.checkpoints / "best.pt"
+
+    @property
+    def config(self) -> Path:
+        return self.checkpoints / "config.json"
+
+    def owned(self) -> list[Path]:
+        """Everything a run writes (what --overwrite deletes; other files in RUN_DIR are left alone)."""
+        return [self.metrics, self.splits, self.checkpoints]
+
+
+def check_run_dir(files: RunFiles, resume: bool, overwrite: bool) -> None:
+    """Refuse to mix runs: a used RUN_DIR needs --resume or --overwrite, and --resume needs a checkpoint."""
+    if resume and overwrite:
+        raise UserError("--resume and --overwrite contradict each other: pick one.")
+    if resume:
+        if not files.last.is_file():
+            raise UserError(f"nothing to resume: {files.last} does not exist; start a new run without --resume.")
+        return
+    used = [p for p in files.owned() if p.exists()]
+    if files.root.exists() and not files.root.is_dir():
+        raise UserError(f"--out {files.root} is a file; pass a folder for the run.")
+    if used and not overwrite:
+        raise UserError(f"{files.root} already holds a training run; continue it with --resume, replace it with "
+                        "--overwrite, or pass another --out.")
+
+
+def clear_run(files: RunFiles) -> None:
+    """Delete the files of a previous run in RUN_DIR (only ours), for --overwrite."""
+    for path in files.owned():
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            path.unlink()
+
+
+def write_run_config(files: RunFiles, config: TrainConfig, dataset_dir: Path) -> None:
+    write_json(files.config, {"dataset": str(dataset_dir), "model": config_to_json(config.model),
+                              "train": config_to_json(config)})
+
+
+def append_metrics(files: RunFiles, record: dict[str, Any]) -> None:
+    """Append one JSON line and flush, so a crash loses at most the line being written."""
+    with open(files.metrics, "a", encoding="utf-8") as handle:
+        handle.write(json.dumps(record) + "\n")
+
+
+def truncate_metrics(files: RunFiles, step: int) -> None:
+    """Drop metric lines after ``step`` (written after the checkpoint a resumed run restarts from)."""
+    if not files.metrics.is_file():
+        return
+    lines = files.metrics.read_text(encoding="utf-8").splitlines()
+    kept = [line for line in lines if _step_of(line) <= step]
+    if len(kept) != len(lines):
+        with atomic_path(files.metrics) as tmp:
+            tmp.write_text("".join(line + "\n" for line in kept), encoding="utf-8")
+
+
+def _step_of(line: str) -> float:
+    try:
+        return float(json.loads(line).get("step", 0))
+    except (ValueError, AttributeError):
+        return float("inf")  # an unreadable (half-written) line goes
+
+
+def write_splits(files: RunFiles, train: list[str], val: list[str]) -> None:
+    write_json(files.splits, {"train": train, "val": val})
+
+
+def read_splits(files: RunFiles) -> tuple[list[str], list[str]]:
+    try:
+        data = json.loads(files.splits.read_text(encoding="utf-8"))
+        return [str(n) for n in data["train"]], [str(n) for n in data["val"]]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise UserError(f"{files.splits} cannot be read ({err}); the run folder is damaged: start a new run.") from None

@@ -1,0 +1,191 @@
+"""Setting up a training session: run folder, scenes, model, optimizer, and what --resume restores."""
+from __future__ import annotations
+
+import json
+import random
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from ..checkpoint import Checkpoint, TrainState, load_weights, read_checkpoint, save_checkpoint
+from ..config import config_to_json
+from ..errors import UserError
+from ..model import InsertNeRF, LossTerms, SourceViews
+from ..rays import Rays
+from . import distributed
+from .config import DATA_FIELDS, TrainConfig, model_differences
+from .data import (ImageCache, TrainScene, ViewDraw, check_view_counts, find_scenes, split_scenes,
+                   validation_draws)
+from .distributed import DistContext
+from .rng import capture_rng, restore_rng
+from .run_dir import (RunFiles, check_run_dir, clear_run, read_splits, truncate_metrics, write_run_config,
+                      write_splits)
+
+Say = Callable[[str], None]
+_BYTES_PER_MB = 1 << 20
+
+
+@dataclass
+class Session:
+    """Everything one training session works with; ``step``, ``best_val_psnr`` and ``saved_step`` change."""
+
+    config: TrainConfig
+    files: RunFiles
+    ctx: DistContext
+    model: InsertNeRF
+    optimizer: torch.optim.Optimizer
+    data_rng: np.random.Generator
+    train_scenes: list[TrainScene]
+    val_scenes: list[TrainScene]
+    val_draws: list[ViewDraw]
+    cache: ImageCache
+    say: Say
+    step: int = 0
+    elapsed_before: float = 0.0  # training seconds of earlier sessions of this run
+    best_val_psnr: float | None = None
+    saved_step: int | None = None  # step of the newest checkpoint on disk
+    start_step: int = 0
+    objective: nn.Module | None = None  # Objective(model), wrapped in DistributedDataParallel under torchrun
+
+
+class Objective(nn.Module):
+    """The training loss of one batch, as one module so DistributedDataParallel can wrap all of it."""
+
+    def __init__(self, model: InsertNeRF) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, views: SourceViews, rays: Rays, target_rgb: Tensor) -> LossTerms:
+        encoded = self.model.encode(views)
+        output = self.model(encoded, rays, train=True)
+        return self.model.losses(output, target_rgb, encoded)
+
+
+def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: DistContext,
+                 resume: bool, overwrite: bool, say: Say) -> Session:
+    """Check the run folder, read the scenes, build (or restore) model, optimizer and generators."""
+    check_run_dir(files, resume, overwrite)  # every rank checks before any rank writes
+    distributed.barrier(ctx)
+    checkpoint = read_checkpoint(files.last) if resume else None
+    if checkpoint is not None:
+        check_compatible(checkpoint, config, say)
+    scenes = find_scenes(dataset_dir, config.resolution, say)
+    train, val = _split(files, scenes, config, resume, say)
+    check_view_counts(train, val, config.model.num_views)
+    # Validate on held-out scenes; a dataset too small to hold any out validates on unseen views instead.
+    val_source = val or train[: max(1, config.val_scenes)]
+    _seed_everything(config.seed)
+    model = InsertNeRF(config.model).to(ctx.device)
+    optimizer = torch.optim.Adam(param_groups(model, config))
+    session = Session(config, files, ctx, model, optimizer, np.random.default_rng([config.seed, ctx.rank]),
+                      train, val_source, validation_draws(val_source, config.model.num_views, config.val_rays,
+                                                          config.seed),
+                      ImageCache(config.cache_mb * _BYTES_PER_MB), say)
+    if checkpoint is not None:
+        _restore(session, checkpoint)
+    session.objective = distributed.wrap(Objective(model), ctx)  # after restoring: DDP broadcasts rank 0
+    if ctx.is_main:
+        _prepare_files(session, dataset_dir, resume, overwrite, ([s.name for s in train], [s.name for s in val]))
+    distributed.barrier(ctx)
+    return session
+
+
+def check_compatible(checkpoint: Checkpoint, config: TrainConfig, say: Say) -> None:
+    """--resume must keep the model config; other changed settings are allowed with a warning."""
+    differences = model_differences(checkpoint.model_config, config.model)
+    if differences:
+        raise UserError(f"{checkpoint.path} was trained with another model config ({'; '.join(differences[:3])}); "
+                        "resume without flags that change the model, or start a new run with another --out.")
+    if checkpoint.train_state is None:
+        raise UserError(f"{checkpoint.path} holds weights only (no optimizer or step); it cannot be resumed.")
+    saved = json.loads(checkpoint.train_state.train_config)
+    now = config_to_json(config)
+    changed = [f"{k} {saved.get(k)!r} -> {now[k]!r}" for k in DATA_FIELDS if saved.get(k) != now[k]]
+    if changed:
+        say(f"warning: resumed with changed settings ({', '.join(changed)}); the run will not match an "
+            "uninterrupted one.")
+
+
+def param_groups(model: nn.Module, config: TrainConfig) -> list[dict]:
+    """Adam groups: the U-Net encoder (its own learning rate, as GNT trains its extractor) and the rest."""
+    encoder = [p for n, p in model.named_parameters() if n.startswith("encoder.")]
+    rest = [p for n, p in model.named_parameters() if not n.startswith("encoder.")]
+    groups = [{"params": rest, "lr": config.lr, "name": "nerf"}]
+    if encoder:
+        groups.append({"params": encoder, "lr": config.lr_encoder, "name": "encoder"})
+    return groups
+
+
+def set_learning_rates(session: Session) -> float:
+    """Decayed learning rates for the current step; returns the NeRF part's rate (for the log)."""
+    cfg = session.config
+    for group in session.optimizer.param_groups:
+        base = cfg.lr_encoder if group.get("name") == "encoder" else cfg.lr
+        group["lr"] = cfg.learning_rate(base, session.step)
+    return cfg.learning_rate(cfg.lr, session.step)
+
+
+def save(session: Session, path: Path, elapsed_s: float) -> None:
+    """A checkpoint of the session at its current (completed) step, after ``elapsed_s`` of training in total."""
+    state = TrainState(step=session.step, elapsed_s=elapsed_s, optimizer=session.optimizer.state_dict(),
+                       rng=capture_rng(session.data_rng, session.ctx.device),
+                       train_config=json.dumps(config_to_json(session.config)), best_val_psnr=session.best_val_psnr)
+    save_checkpoint(path, session.model, session.config.model, state)
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % (1 << 32))
+    torch.manual_seed(seed)
+
+
+def _restore(session: Session, checkpoint: Checkpoint) -> None:
+    """Weights, optimizer, step, time, best PSNR and generators of the checkpoint."""
+    state = checkpoint.train_state
+    assert state is not None  # check_compatible refused weight-only checkpoints
+    load_weights(session.model, checkpoint)
+    try:
+        session.optimizer.load_state_dict(state.optimizer)
+    except (ValueError, KeyError) as err:
+        raise UserError(f"{checkpoint.path}: optimizer state does not fit the model ({err}); start a new run.") from None
+    session.step = session.start_step = session.saved_step = state.step
+    session.elapsed_before = state.elapsed_s
+    session.best_val_psnr = state.best_val_psnr
+    restore_rng(state.rng, session.data_rng, session.ctx.device)
+    if session.ctx.rank > 0:
+        # Only rank 0's generator is saved; the others continue on a stream of their own.
+        session.data_rng = np.random.default_rng([session.config.seed, session.ctx.rank, state.step])
+
+
+def _split(files: RunFiles, scenes: list[TrainScene], config: TrainConfig, resume: bool,
+           say: Say) -> tuple[list[TrainScene], list[TrainScene]]:
+    """Training and held-out scenes: new for a new run, the run's own (splits.json) when resuming."""
+    if not resume:
+        return split_scenes(scenes, config.val_scenes, config.seed)
+    train_names, val_names = read_splits(files)
+    by_name = {s.name: s for s in scenes}
+    missing = [n for n in train_names + val_names if n not in by_name]
+    if missing:
+        raise UserError(f"scene {missing[0]} of this run is not in the dataset any more ({len(missing)} missing); "
+                        "resume with the dataset the run started with.")
+    extra = len(scenes) - len(train_names) - len(val_names)
+    if extra:
+        say(f"ignoring {extra} scene(s) added to the dataset since the run started.")
+    return [by_name[n] for n in train_names], [by_name[n] for n in val_names]
+
+
+def _prepare_files(session: Session, dataset_dir: Path, resume: bool, overwrite: bool,
+                   names: tuple[list[str], list[str]]) -> None:
+    files = session.files
+    if overwrite:
+        clear_run(files)
+    files.checkpoints.mkdir(parents=True, exist_ok=True)
+    if resume:
+        truncate_metrics(files, session.step)
+    else:
+        write_splits(files, *names)
+    write_run_config(files, session.config, dataset_dir)
