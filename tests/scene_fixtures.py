@@ -113,6 +113,7 @@ def write_nerfstudio(root: Path, known: KnownScene) -> Path:
 def write_llff(root: Path, known: KnownScene, factor: int = 1) -> Path:
     """poses_bounds.npy at full size, images in images/ (or images_<factor>/ downscaled)."""
     cams = known.cameras
+    root.mkdir(parents=True, exist_ok=True)
     llff = opencv_to_llff(cams.c2w).numpy()  # [N, 3, 4]
     hwf = np.tile([[cams.height], [cams.width], [float(cams.K[0, 0, 0])]], (len(cams), 1, 1))  # [N, 3, 1]
     rows = np.concatenate([llff, hwf], axis=2).reshape(len(cams), 15)
@@ -146,7 +147,7 @@ def write_colmap(root: Path, known: KnownScene, text: bool = False) -> Path:
         for i in range(len(known.names)):
             track.add_element(i + 1, j)
         rec.add_point3D(xyz, track)
-    out = root / "sparse" / "0"
+    out = root / "sparse" / "0"  # also creates root
     out.mkdir(parents=True, exist_ok=True)
     (rec.write_text if text else rec.write_binary)(str(out))
     write_images(root / "images", known)
@@ -174,6 +175,7 @@ def write_dtu_mvsnet(root: Path, known: KnownScene, k_factor: int = 1) -> Path:
 def write_dtu_idr(root: Path, known: KnownScene, scale: float = 2.0) -> Path:
     """cameras.npz with world_mat_i = K [R|t] in a world ``scale`` times larger, undone by scale_mat_i."""
     cams = known.cameras
+    root.mkdir(parents=True, exist_ok=True)
     w2c = np.linalg.inv(cams.c2w.numpy())
     scale_mat = np.diag([scale, scale, scale, 1.0])  # normalised -> big world
     arrays = {}

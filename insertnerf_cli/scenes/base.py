@@ -127,6 +127,7 @@ class Scene:
         where = {old: new for new, old in enumerate(indices)}
         pick = (lambda xs: None if xs is None else [xs[i] for i in indices])
         splits = {k: [where[i] for i in v if i in where] for k, v in self.splits.items()}
+        splits = {k: v for k, v in splits.items() if v}
         return replace(self, cameras=self.cameras.subset(indices), image_paths=pick(self.image_paths),
                        near=self.near[indices], far=self.far[indices], splits=splits,
                        depth_paths=pick(self.depth_paths), distortion=pick(self.distortion))

@@ -147,8 +147,9 @@ def read_frames(root: Path, sources: list[tuple[Path, dict[str, Any]]], default_
                   distortion=dists if any(d is not None for d in dists) else None)
 
 
-def depth_scale(meta: dict[str, Any]) -> float:
-    return float(meta.get("depth_unit_scale_factor", DEFAULT_DEPTH_SCALE))
+def depth_scale(meta: dict[str, Any], frames: Frames) -> float:
+    """Scene units per stored depth unit: the file's factor, nerfstudio's default with depth files, else 1."""
+    return float(meta.get("depth_unit_scale_factor", DEFAULT_DEPTH_SCALE if frames.depth_paths else 1.0))
 
 
 def layout_key(meta: dict[str, Any], source: Path) -> str | None:

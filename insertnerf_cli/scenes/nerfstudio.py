@@ -57,5 +57,5 @@ def read_nerfstudio(root: Path, background: tuple[float, float, float]) -> Scene
                       c2w=_undo_applied_transform(frames.c2w, meta, source), format="nerfstudio",
                       sizes=frames.sizes, near=frames.near, far=frames.far,
                       splits=_splits(root, meta, frames.paths, source), layout=layout_key(meta, source),
-                      depth_paths=frames.depth_paths, depth_scale=depth_scale(meta), distortion=frames.distortion)
+                      depth_paths=frames.depth_paths, depth_scale=depth_scale(meta, frames), distortion=frames.distortion)
     return assemble(views, background)
