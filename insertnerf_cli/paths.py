@@ -28,6 +28,9 @@ SPIRAL_RADIUS_QUANTILE = 0.9
 SPIRAL_NEAR_MARGIN = 0.9
 SPIRAL_FAR_FACTOR = 5.0
 SPIRAL_NEAR_WEIGHT = 0.25
+# A spiral needs a common viewing direction: the mean of the unit optical axes must keep at least this length
+# (about 45 degrees of spread), else the inputs surround the scene and an orbit is the path to take.
+SPIRAL_MIN_AXIS_AGREEMENT = 0.7
 
 
 @dataclass(frozen=True)
@@ -142,6 +145,10 @@ def spiral_path(cameras: Cameras, near: Tensor, far: Tensor, frames: int, size: 
     at half rate close the loop.
     """
     _check_frames(frames)
+    agreement = float(torch.nn.functional.normalize(cameras.forward, dim=-1).mean(0).norm())
+    if agreement < SPIRAL_MIN_AXIS_AGREEMENT:
+        raise UserError("the input cameras look in too many directions for a spiral path (they surround the "
+                        "scene); use --path orbit or --path input")
     centre = cameras.centers.mean(0)
     axes = [torch.nn.functional.normalize(cameras.c2w[:, :3, i].mean(0), dim=0) for i in range(3)]
     forward = axes[2]

@@ -114,6 +114,8 @@ def test_make_path_dispatch_and_errors():
         make_path("zigzag", cams, near, far, 5, (60, 80))
     with pytest.raises(UserError):
         make_path("orbit", cams, near, far, 0, (60, 80))
+    with pytest.raises(UserError, match="--path orbit"):  # cameras all around the scene: no spiral
+        make_path("spiral", cams, near, far, 5, (60, 80))
 
 
 def test_look_at_axes_are_opencv():

@@ -1,8 +1,60 @@
-"""`insertnerf render` (being built)."""
+"""`insertnerf render`: a turntable or spiral video, frames, depth maps and cameras from a scene or a photo folder."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
 import click
+
+from ..pipeline import DEFAULT_CHUNK, DEFAULT_FPS, DEFAULT_RESOLUTION, DEFAULT_VIEWS, RenderConfig, render_scene
+from ..paths import PATH_KINDS
+from .common import device_option, overwrite_option, resolve_device, user_errors
+
+
+def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    """--views, --resolution, --checkpoint, --chunk: shared by render and eval."""
+    options = [
+        click.option("--views", type=click.IntRange(min=1), default=DEFAULT_VIEWS, show_default=True,
+                     help="Reference views per rendered image (the nearest ones)."),
+        click.option("--resolution", type=click.IntRange(min=0), default=DEFAULT_RESOLUTION, show_default=True,
+                     help="Long side of the rendered images in pixels; 0 = the photos' own size."),
+        click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+                     help="Generator weights from `insertnerf train` (default: the bundled pretrained ones)."),
+        click.option("--chunk", type=click.IntRange(min=1), default=DEFAULT_CHUNK, show_default=True,
+                     help="Rays per network call; lower it if memory runs out."),
+    ]
+    for option in reversed(options):
+        func = option(func)
+    return func
 
 
 @click.command("render")
-def render() -> None:
-    """Not built yet."""
-    raise click.ClickException("insertnerf render is not built yet in this version.")
+@click.argument("scene_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
+              help="Output folder (frames/, depth/, depth_vis/, video.mp4, depth.mp4, cameras.json).")
+@click.option("--path", "path_kind", type=click.Choice(PATH_KINDS),
+              help="Camera path; default: orbit for object-centric/360 captures, spiral for forward-facing ones; "
+                   "input re-renders the input poses.")
+@click.option("--frames", type=click.IntRange(min=1),
+              help="Frames of the path [default: 30; for --path input every input view].")
+@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_FPS, show_default=True,
+              help="Frame rate of the videos.")
+@model_options
+@device_option
+@overwrite_option
+@user_errors
+def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float, views: int,
+           resolution: int, checkpoint: Path | None, chunk: int, device: str, overwrite: bool) -> None:
+    """Render novel views of SCENE_DIR into --out: frames, depth maps, videos and cameras.
+
+    SCENE_DIR is a scene in any supported format, or a plain folder of photos (their poses are then estimated
+    with COLMAP first and cached in OUT/poses/). Re-running the same command resumes an interrupted render.
+
+    \b
+    Example:
+      insertnerf render photos/ --out views/ --frames 60 --resolution 320
+    """
+    config = RenderConfig(path=path_kind, frames=frames, fps=fps, resolution=resolution or None, views=views,
+                          checkpoint=checkpoint, device=str(resolve_device(device)), chunk=chunk,
+                          overwrite=overwrite)
+    click.echo(render_scene(scene_dir, out_dir, config).line())

@@ -1,0 +1,396 @@
+"""The library behind `insertnerf render` and `insertnerf eval` (no click here).
+
+render: scene folder (or a plain folder of photos, posed first with pycolmap and cached in OUT/poses/) -> normalise
+-> camera path -> per frame: nearest reference views -> encode (cached while the views repeat) -> chunked render
+-> frames/depth/depth_vis PNGs -> videos and cameras.json in the user's units. A re-run with the same settings
+resumes: finished frames are kept, the rest rendered.
+eval: held-out views (the test split, else every 8th) rendered from the nearest of the other views -> PSNR/SSIM.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import shutil
+import sys
+import time
+from collections import OrderedDict
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from .atomic import write_json
+from .cameras import Cameras
+from .errors import UserError
+from .metrics import SSIM_WINDOW, psnr, ssim
+from .outputs import (CAMERAS_JSON, FRAME_DIRS, VIDEOS, depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths,
+                      side_by_side, write_cameras_json, write_frame, write_png, write_video)
+from .paths import CameraPath, default_path_kind, make_path
+
+DEFAULT_FRAMES = 30
+DEFAULT_FPS = 15.0
+DEFAULT_RESOLUTION = 256
+DEFAULT_VIEWS = 10
+DEFAULT_CHUNK = 4096
+STATE_FILE = "render_config.json"
+POSES_DIR = "poses"
+STATE_VERSION = 1
+# Below half opacity a pixel shows mostly background, so its depth says little: it is written as invalid (0).
+MIN_DEPTH_OPACITY = 0.5
+# Consecutive frames of a path mostly share their reference views; a few encodings cover the overlaps.
+ENCODING_CACHE_SIZE = 4
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Settings of one `render` run.
+
+    Attributes:
+        path: "orbit", "spiral", "input", or None to choose by the scene's layout (orbit for object-centric).
+        frames: frames of an orbit/spiral (None = DEFAULT_FRAMES); for "input", None = every input view.
+        fps: frame rate of the videos.
+        resolution: long side of the frames in pixels (None = the images' size).
+        views: reference views per frame.
+        checkpoint: generator weights (None = the bundled pretrained ones).
+        device: torch device name ("cpu", "cuda"), resolved by the command.
+        chunk: rays per network call (bounds memory).
+        overwrite: replace the outputs of a different earlier run in the output folder.
+    """
+
+    path: str | None = None
+    frames: int | None = None
+    fps: float = DEFAULT_FPS
+    resolution: int | None = DEFAULT_RESOLUTION
+    views: int = DEFAULT_VIEWS
+    checkpoint: Path | None = None
+    device: str = "cpu"
+    chunk: int = DEFAULT_CHUNK
+    overwrite: bool = False
+
+
+@dataclass(frozen=True)
+class RenderSummary:
+    """What `render` produced: ``rendered`` frames this run plus ``resumed`` kept from an interrupted one."""
+
+    out_dir: Path
+    path: str
+    frames: int
+    rendered: int
+    resumed: int
+    height: int
+    width: int
+    seconds_per_frame: float | None
+    depth_clipped: int
+
+    def line(self) -> str:
+        speed = "" if self.seconds_per_frame is None else f", {self.seconds_per_frame:.1f} s/frame"
+        kept = f" ({self.resumed} kept from the earlier run)" if self.resumed else ""
+        clip = f"; {self.depth_clipped} depth pixels beyond 65.5 units were clipped" if self.depth_clipped else ""
+        return (f"{self.frames} frames ({self.path}, {self.width}x{self.height}) in {self.out_dir}: rendered "
+                f"{self.rendered}{kept}{speed}; see video.mp4, depth.mp4, cameras.json{clip}")
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Settings of one `eval` run (views, resolution, checkpoint, device, chunk as in RenderConfig).
+
+    Attributes:
+        out_dir: folder for side-by-side images (render | truth | error), or None for none.
+        json_path: file for the report (keys psnr, ssim, views), or None.
+        max_views: evaluate at most this many held-out views, evenly spread (None = all).
+        overwrite: replace an existing JSON report and side-by-side images.
+    """
+
+    views: int = DEFAULT_VIEWS
+    resolution: int | None = DEFAULT_RESOLUTION
+    checkpoint: Path | None = None
+    device: str = "cpu"
+    chunk: int = DEFAULT_CHUNK
+    out_dir: Path | None = None
+    json_path: Path | None = None
+    max_views: int | None = None
+    overwrite: bool = False
+
+
+@dataclass(frozen=True)
+class ViewScore:
+    """One held-out view: its index and file name, scores, and the reference views it was rendered from."""
+
+    index: int
+    name: str
+    psnr: float
+    ssim: float
+    references: tuple[int, ...]
+    seconds: float
+
+
+@dataclass(frozen=True)
+class EvalReport:
+    """Mean PSNR (dB) and SSIM over the held-out views, and each view's record."""
+
+    scene: Path
+    height: int
+    width: int
+    psnr: float
+    ssim: float
+    views: tuple[ViewScore, ...]
+
+    def to_json(self) -> dict:
+        """JSON-ready dict with keys psnr, ssim, views (infinite PSNR of a perfect view is written as null)."""
+        def finite(x: float) -> float | None:
+            return x if math.isfinite(x) else None
+
+        views = [{**asdict(v), "psnr": finite(v.psnr), "references": list(v.references)} for v in self.views]
+        return {"psnr": finite(self.psnr), "ssim": self.ssim, "views": views, "scene": str(self.scene),
+                "height": self.height, "width": self.width}
+
+
+# ---------------------------------------------------------------------------------------------------- scene
+def _image_fingerprint(folder: Path) -> list[list] | None:
+    """Names, sizes and modification times of a plain image folder (None for a scene folder)."""
+    from .scenes import find_images
+
+    try:
+        images = find_images(folder)
+    except UserError:
+        return None
+    return [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in images] or None
+
+
+def _is_scene(folder: Path) -> bool:
+    from .scenes import detect_format
+
+    return detect_format(folder) is not None
+
+
+def _posed_photos(scene_dir: Path, poses_dir: Path):
+    """The scene pycolmap makes of a plain photo folder, estimated once into ``poses_dir`` and reused after."""
+    from .scenes import load_scene
+
+    if not (poses_dir / "transforms.json").is_file():
+        from .colmap import PosesOptions, estimate_poses
+
+        print(f"{scene_dir} is a folder of photos without poses: estimating them with COLMAP into {poses_dir} "
+              "(once; later runs reuse them)", file=sys.stderr)
+        estimate_poses(scene_dir, poses_dir, PosesOptions(overwrite=True))
+    return load_scene(poses_dir)
+
+
+def _checkpoint_path(checkpoint: Path | None) -> Path:
+    from .checkpoint import bundled_checkpoint
+
+    return Path(checkpoint) if checkpoint is not None else bundled_checkpoint()
+
+
+def _load_model(checkpoint: Path, device: str) -> torch.nn.Module:
+    from .checkpoint import load_model
+
+    return load_model(checkpoint, torch.device(device))[0]
+
+
+def _sha256(path: Path) -> str:
+    if not path.is_file():
+        raise UserError(f"checkpoint {path} does not exist; pass --checkpoint with a file from `insertnerf train`")
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+class _Renderer:
+    """Renders target cameras of a normalised scene from their nearest reference views, caching encodings."""
+
+    def __init__(self, model: torch.nn.Module, scene, config: RenderConfig | EvalConfig, size: tuple[int, int]) -> None:
+        self.model = model
+        self.scene, self.size, self.k, self.chunk = scene, size, config.views, config.chunk
+        self.method = "dist" if scene.layout == "forward" else "vector"
+        self.cache: OrderedDict[tuple[int, ...], object] = OrderedDict()
+
+    def references(self, target_c2w: torch.Tensor, exclude: list[int]) -> list[int]:
+        from .views import nearest_views
+
+        refs = nearest_views(target_c2w, self.scene.cameras.c2w, self.k, self.method, exclude=exclude)
+        if not refs:
+            raise UserError(f"{self.scene.root}: no reference views left to render from")
+        return refs
+
+    def _encoded(self, refs: list[int]):
+        from .model import SourceViews
+
+        key = tuple(sorted(refs))
+        if key not in self.cache:
+            images, cams = self.scene.load_views(list(key), *self.size)
+            param = next(self.model.parameters())
+            views = SourceViews(images, cams).to(device=param.device, dtype=param.dtype)
+            with torch.inference_mode():
+                self.cache[key] = self.model.encode(views)
+            while len(self.cache) > ENCODING_CACHE_SIZE:
+                self.cache.popitem(last=False)
+        self.cache.move_to_end(key)
+        return self.cache[key]
+
+    def render(self, camera: Cameras, near: float, far: float, exclude: list[int]):
+        """(ImageOutput of ``camera`` (1), the reference indices used); never uses an index in ``exclude``."""
+        from .render import render_image
+
+        refs = self.references(camera.c2w[0], exclude)
+        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk), refs
+
+
+# ---------------------------------------------------------------------------------------------------- render
+def _prepare_out_dir(out_dir: Path, state: dict, overwrite: bool) -> None:
+    """Create OUT, resume a run with the same state, or refuse to mix with a different run (unless overwrite)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"--out {out_dir} is a file; choose a folder")
+    state_file = out_dir / STATE_FILE
+    old = _read_state(state_file)
+    if old == state and not overwrite:
+        return
+    ours = [*FRAME_DIRS, *VIDEOS, CAMERAS_JSON, STATE_FILE]
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+        what = "a render with other settings" if old is not None else "other files"
+        raise UserError(f"{out_dir} already holds {what}; pass --overwrite to replace its render outputs, "
+                        "or choose another --out")
+    for name in ours:
+        target = out_dir / name
+        shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
+    if old is None or old.get("images") != state.get("images"):
+        shutil.rmtree(out_dir / POSES_DIR, ignore_errors=True)  # poses of other photos
+    write_json(state_file, state)
+
+
+def _read_state(state_file: Path) -> dict | None:
+    """The settings an earlier run recorded, or None (no file, or one cut short or edited into non-JSON)."""
+    try:
+        return json.loads(state_file.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, images: list | None) -> dict:
+    """Everything that changes the frames: a re-run with an equal state may resume."""
+    return {"version": STATE_VERSION, "scene": str(scene_dir.resolve()), "images": images, "path": config.path,
+            "frames": config.frames, "resolution": config.resolution, "views": config.views,
+            "checkpoint_sha256": _sha256(checkpoint)}
+
+
+def _plan(scene, config: RenderConfig):
+    """(normalised scene, its Similarity, the CameraPath to render)."""
+    from .scenes import normalize_scene
+
+    scene, similarity = normalize_scene(scene)
+    kind = config.path or default_path_kind(scene.layout)
+    frames = config.frames if config.frames is not None or kind == "input" else DEFAULT_FRAMES
+    path = make_path(kind, scene.cameras, scene.near, scene.far, frames if frames is not None else len(scene),
+                     scene.size_for(config.resolution))
+    return scene, similarity, path
+
+
+def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfig) -> RenderSummary:
+    """Render a camera path of the scene in ``scene_dir`` into ``out_dir`` (see outputs.py for the files).
+
+    Raises:
+        UserError: no ffmpeg, unreadable scene, failed pose estimation, bad checkpoint, or an output folder
+            holding a different run without ``config.overwrite``.
+    """
+    from .scenes import load_scene
+
+    scene_dir, out_dir = Path(scene_dir), Path(out_dir)
+    ffmpeg_exe()  # before any long work: the videos need it
+    checkpoint = _checkpoint_path(config.checkpoint)
+    images = None if _is_scene(scene_dir) else _image_fingerprint(scene_dir)
+    # A bad scene, path or checkpoint fails here, before OUT is touched.
+    planned = _plan(load_scene(scene_dir), config) if images is None else None
+    model = _load_model(checkpoint, config.device)
+    _prepare_out_dir(out_dir, _render_state(scene_dir, checkpoint, config, images), config.overwrite)
+    scene, similarity, path = planned or _plan(_posed_photos(scene_dir, out_dir / POSES_DIR), config)
+    user_cams = similarity.inverse().apply_cameras(path.cameras)
+    write_cameras_json(out_dir / CAMERAS_JSON, user_cams, path.near / similarity.scale, path.far / similarity.scale,
+                       extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
+                              "normalization": similarity.to_json()})
+    renderer = _Renderer(model, scene, config, (path.cameras.height, path.cameras.width))
+    rendered, resumed, seconds, clipped = _render_frames(renderer, path, out_dir, similarity.scale)
+    for video, sub in zip(VIDEOS, ("frame", "depth_vis")):
+        write_video(out_dir / video, [getattr(frame_paths(out_dir, i), sub) for i in range(len(path))], config.fps)
+    return RenderSummary(out_dir, path.kind, len(path), rendered, resumed, path.cameras.height, path.cameras.width,
+                         seconds / rendered if rendered else None, clipped)
+
+
+def _render_frames(renderer: _Renderer, path: CameraPath, out_dir: Path, scale: float) -> tuple[int, int, float, int]:
+    """Render every frame whose files are missing; returns (rendered, kept, seconds spent, clipped depth pixels)."""
+    todo = [i for i in range(len(path)) if not frame_paths(out_dir, i).all_exist()]
+    resumed, seconds, clipped = len(path) - len(todo), 0.0, 0
+    near, far = float(path.near.min()), float(path.far.max())
+    bar = tqdm(total=len(path), initial=resumed, unit="frame", desc="rendering", file=sys.stderr,
+               dynamic_ncols=True, disable=None)
+    with bar:
+        for i in todo:
+            start = time.perf_counter()
+            exclude = [path.source_index[i]] if path.source_index is not None else []
+            out, _ = renderer.render(path.cameras.subset([i]), float(path.near[i]), float(path.far[i]), exclude)
+            depth = out.depth.double().cpu().numpy()
+            valid = out.opacity.cpu().numpy() >= MIN_DEPTH_OPACITY
+            depth_mm, n_clipped = depth_to_uint16(depth / scale, valid)
+            write_frame(frame_paths(out_dir, i), out.rgb.float().cpu().numpy(), depth_mm,
+                        depth_to_turbo(depth, valid, near, far))
+            clipped += n_clipped
+            took = time.perf_counter() - start
+            seconds += took
+            bar.set_postfix_str(f"last frame {took:.1f} s")
+            bar.update(1)
+    return len(todo), resumed, seconds, clipped
+
+
+# ---------------------------------------------------------------------------------------------------- eval
+def held_out_views(scene, max_views: int | None = None) -> list[int]:
+    """The test split when the scene has one, else every 8th view; at most ``max_views``, evenly spread."""
+    test = scene.split("test")
+    if not test or len(test) == len(scene):
+        raise UserError(f"{scene.root}: {len(scene)} views leave no held-out/reference split to evaluate")
+    if max_views is not None and max_views < len(test):
+        test = [test[round(i * (len(test) - 1) / max(max_views - 1, 1))] for i in range(max_views)]
+    return sorted(set(test))
+
+
+def _check_eval_outputs(config: EvalConfig) -> None:
+    """Refuse, before any work, to replace an existing report or side-by-sides without overwrite."""
+    if config.overwrite:
+        return
+    if config.json_path is not None and Path(config.json_path).exists():
+        raise UserError(f"{config.json_path} exists; pass --overwrite to replace it or choose another --json")
+    if config.out_dir is not None and Path(config.out_dir).is_dir() and any(Path(config.out_dir).iterdir()):
+        raise UserError(f"{config.out_dir} is not empty; pass --overwrite to replace its images or choose another --out")
+
+
+def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
+    """Render each held-out view from its nearest non-held-out views, score it against the photo, and write the
+    side-by-sides and JSON report that ``config`` asks for."""
+    from .scenes import load_scene, normalize_scene
+
+    _check_eval_outputs(config)
+    scene, _ = normalize_scene(load_scene(Path(scene_dir)))
+    held = held_out_views(scene, config.max_views)
+    size = scene.size_for(config.resolution)
+    if min(size) < SSIM_WINDOW:
+        raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
+    renderer = _Renderer(_load_model(_checkpoint_path(config.checkpoint), config.device), scene, config, size)
+    scores = []
+    for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True, disable=None):
+        start = time.perf_counter()
+        camera = scene.cameras.subset([index]).rescale(*size)
+        out, refs = renderer.render(camera, float(scene.near[index]), float(scene.far[index]), exclude=held)
+        assert not set(refs) & set(held), "a held-out view was chosen as a reference"
+        render, truth = out.rgb.double().cpu().numpy(), scene.load_image(index, *size).astype(np.float64)
+        scores.append(ViewScore(index, scene.names[index], psnr(render, truth), ssim(render, truth), tuple(refs),
+                                time.perf_counter() - start))
+        if config.out_dir is not None:
+            write_png(Path(config.out_dir) / f"{index:05d}.png", side_by_side(render, truth))
+    report = EvalReport(Path(scene_dir), size[0], size[1], float(np.mean([s.psnr for s in scores])),
+                        float(np.mean([s.ssim for s in scores])), tuple(scores))
+    if config.json_path is not None:
+        write_json(config.json_path, report.to_json())
+    return report

@@ -1,0 +1,183 @@
+"""`insertnerf render` through click's CliRunner on a tiny Blender scene with a tiny random-init checkpoint."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from insertnerf_cli.cameras import Cameras, intrinsics
+from insertnerf_cli.checkpoint import save_checkpoint
+from insertnerf_cli.cli import cli
+from insertnerf_cli.config import ModelConfig
+from insertnerf_cli.model import InsertNeRF
+from insertnerf_cli.outputs import DEPTH_UNIT_SCALE, video_codec
+from insertnerf_cli.paths import look_at
+from insertnerf_cli.pipeline import STATE_FILE
+from insertnerf_cli.scenes import write_blender_transforms
+
+HEIGHT, WIDTH = 24, 32
+# Tiny network: CLI mechanics only, random weights are fine.
+TINY = dict(encoder_widths=(4, 4, 4, 4), feature_dims=(4, 4, 4), nerf_width=8, appearance_width=8, film_hidden=8,
+            samples_coarse=8, samples_fine=8, aggregate_hidden=4)
+
+
+def ring_cameras(n: int, radius: float = 2.0) -> Cameras:
+    """n cameras on a ring of ``radius`` units around the origin (world z up), looking at it."""
+    angles = torch.arange(n, dtype=torch.float64) * 2 * math.pi / n
+    eyes = torch.stack([radius * torch.cos(angles), radius * torch.sin(angles),
+                        torch.full_like(angles, 0.5 * radius)], dim=-1)
+    c2w = look_at(eyes, torch.zeros(3, dtype=torch.float64), torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
+    return Cameras(intrinsics(30.0, 30.0, WIDTH / 2, HEIGHT / 2).expand(n, 3, 3).clone(), c2w, HEIGHT, WIDTH)
+
+
+def grid_cameras(n: int) -> Cameras:
+    """n cameras on a small grid in the plane z = 0, all facing +z: a forward-facing capture."""
+    c2w = torch.eye(4, dtype=torch.float64).repeat(n, 1, 1)
+    c2w[:, 0, 3] = 0.1 * (torch.arange(n, dtype=torch.float64) % 3)
+    c2w[:, 1, 3] = 0.1 * (torch.arange(n, dtype=torch.float64) // 3)
+    return Cameras(intrinsics(30.0, 30.0, WIDTH / 2, HEIGHT / 2).expand(n, 3, 3).clone(), c2w, HEIGHT, WIDTH)
+
+
+def make_scene(root: Path, splits: dict[str, int], layout: str = "object") -> Path:
+    """A Blender-format scene with ``splits`` = {name: views}, cameras on a ring ("object") or a grid
+    ("forward"); images are smooth per-view colour ramps."""
+    n = sum(splits.values())
+    cams = ring_cameras(n) if layout == "object" else grid_cameras(n)
+    start = 0
+    for split, count in splits.items():
+        names = [f"{split}/r_{i}.png" for i in range(count)]
+        for i, name in enumerate(names):
+            ramp = np.linspace(0, 1, WIDTH)[None, :, None] * np.array([1.0, 0.5, (start + i) / 16])
+            (root / split).mkdir(parents=True, exist_ok=True)
+            iio.imwrite(root / name, (255 * np.broadcast_to(ramp, (HEIGHT, WIDTH, 3))).astype(np.uint8))
+        write_blender_transforms(root / f"transforms_{split}.json", cams.subset(range(start, start + count)), names,
+                                 near=0.5, far=4.0, extra={"layout": layout})
+        start += count
+    return root
+
+
+def make_checkpoint(path: Path) -> Path:
+    torch.manual_seed(0)
+    config = ModelConfig(**TINY)
+    return save_checkpoint(path, InsertNeRF(config), config)
+
+
+@pytest.fixture(scope="module")
+def scene_and_checkpoint(tmp_path_factory):
+    root = tmp_path_factory.mktemp("render")
+    return make_scene(root / "scene", {"train": 6}), make_checkpoint(root / "tiny.pt")
+
+
+def run(*args: str):
+    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+
+def _render(scene: Path, ckpt: Path, out: Path, *extra: str):
+    return run("render", scene, "--out", out, "--checkpoint", ckpt, "--device", "cpu", "--resolution", 16,
+               "--views", 2, *extra)
+
+
+def _mtimes(folder: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in sorted(folder.iterdir())}
+
+
+def test_render_writes_every_output_with_the_right_types(scene_and_checkpoint, tmp_path):
+    scene, ckpt = scene_and_checkpoint
+    out = tmp_path / "views"
+    result = _render(scene, ckpt, out, "--frames", 3, "--fps", 5)
+    assert result.exit_code == 0, result.output
+    assert "3 frames (orbit, 16x12)" in result.output
+    for i in range(3):
+        rgb = iio.imread(out / "frames" / f"{i:05d}.png")
+        depth = iio.imread(out / "depth" / f"{i:05d}.png")
+        vis = iio.imread(out / "depth_vis" / f"{i:05d}.png")
+        assert rgb.dtype == np.uint8 and rgb.shape == (HEIGHT // 2, WIDTH // 2, 3)
+        assert depth.dtype == np.uint16 and depth.shape == (HEIGHT // 2, WIDTH // 2)
+        assert vis.dtype == np.uint8 and vis.shape == (HEIGHT // 2, WIDTH // 2, 3)
+        # Valid depths lie within the scene's bounds (user units, the scene was not rescaled by the writer).
+        valid = depth[depth > 0] * DEPTH_UNIT_SCALE
+        assert valid.size == 0 or (valid.min() >= 0.5 - 1e-3 and valid.max() <= 4.0 + 1e-3)
+    for video in ("video.mp4", "depth.mp4"):
+        assert "h264" in video_codec(out / video)
+    cams = json.loads((out / "cameras.json").read_text())
+    assert cams["depth_unit_scale_factor"] == DEPTH_UNIT_SCALE and cams["path"] == "orbit"
+    assert len(cams["frames"]) == 3 and cams["frames"][2]["file_path"] == "frames/00002.png"
+    # The path goes back to the user's units: orbit frames sit on the input ring (radius 2, height 1).
+    centres = np.array([f["transform_matrix"] for f in cams["frames"]])[:, :3, 3]
+    np.testing.assert_allclose(np.linalg.norm(centres[:, :2], axis=1), 2.0, atol=1e-6)
+    np.testing.assert_allclose(centres[:, 2], 1.0, atol=1e-6)
+    assert not [p for p in out.rglob("*") if ".tmp" in p.name]
+
+
+def test_interrupted_render_resumes_only_missing_frames(scene_and_checkpoint, tmp_path):
+    scene, ckpt = scene_and_checkpoint
+    out = tmp_path / "views"
+    assert _render(scene, ckpt, out, "--frames", 4).exit_code == 0
+    before = _mtimes(out / "frames")
+    for sub in ("frames", "depth_vis"):  # as if the run had been stopped while frames 1 and 3 were written
+        (out / sub / "00001.png").unlink()
+    (out / "frames" / "00003.png").unlink()
+    result = _render(scene, ckpt, out, "--frames", 4)
+    assert result.exit_code == 0, result.output
+    assert "rendered 2 (2 kept from the earlier run)" in result.output
+    after = _mtimes(out / "frames")
+    assert after["00000.png"] == before["00000.png"] and after["00002.png"] == before["00002.png"]
+    assert sorted(after) == [f"{i:05d}.png" for i in range(4)]
+    assert (out / "depth_vis" / "00001.png").is_file()
+
+
+def test_other_settings_need_overwrite(scene_and_checkpoint, tmp_path):
+    scene, ckpt = scene_and_checkpoint
+    out = tmp_path / "views"
+    assert _render(scene, ckpt, out, "--frames", 2).exit_code == 0
+    state = (out / STATE_FILE).read_text()
+    refused = _render(scene, ckpt, out, "--frames", 3)
+    assert refused.exit_code == 1 and "--overwrite" in refused.output and "Traceback" not in refused.output
+    assert (out / STATE_FILE).read_text() == state and not (out / "frames" / "00002.png").exists()
+    replaced = _render(scene, ckpt, out, "--frames", 3, "--overwrite")
+    assert replaced.exit_code == 0 and "rendered 3" in replaced.output
+    # --overwrite with the same settings renders everything again instead of resuming.
+    again = _render(scene, ckpt, out, "--frames", 3, "--overwrite")
+    assert "rendered 3" in again.output and "kept" not in again.output
+
+
+def test_refuses_a_foreign_non_empty_folder(scene_and_checkpoint, tmp_path):
+    scene, ckpt = scene_and_checkpoint
+    out = tmp_path / "precious"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    result = _render(scene, ckpt, out, "--frames", 2)
+    assert result.exit_code == 1 and "already holds other files" in result.output
+    assert (out / "notes.txt").read_text() == "keep me" and not (out / "frames").exists()
+
+
+def test_input_path_and_spiral_by_layout(scene_and_checkpoint, tmp_path):
+    scene, ckpt = scene_and_checkpoint
+    result = _render(scene, ckpt, tmp_path / "input", "--path", "input", "--resolution", 8)
+    assert result.exit_code == 0 and "6 frames (input" in result.output
+    inputs = json.loads((scene / "transforms_train.json").read_text())["frames"]
+    rendered = json.loads((tmp_path / "input" / "cameras.json").read_text())["frames"]
+    np.testing.assert_allclose([f["transform_matrix"] for f in rendered], [f["transform_matrix"] for f in inputs],
+                               atol=1e-9)
+    # A forward-facing scene gets a spiral by default; an object-centric one refuses a spiral with advice.
+    forward = make_scene(tmp_path / "forward", {"train": 6}, layout="forward")
+    spiral = _render(forward, ckpt, tmp_path / "spiral", "--frames", 2)
+    assert spiral.exit_code == 0 and "2 frames (spiral" in spiral.output, spiral.output
+    refused = _render(scene, ckpt, tmp_path / "no-spiral", "--path", "spiral", "--frames", 2)
+    assert refused.exit_code == 1 and "--path orbit" in refused.output
+    assert not (tmp_path / "no-spiral").exists()  # refused before the output folder was made
+
+
+def test_bad_input_is_one_line_error(scene_and_checkpoint, tmp_path):
+    _, ckpt = scene_and_checkpoint
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    result = _render(empty, ckpt, tmp_path / "out", "--frames", 2)
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert result.output.startswith("Error:") and len(result.output.strip().splitlines()) == 1
