@@ -19,6 +19,7 @@ from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.checkpoint import load_model, read_checkpoint
 from insertnerf_cli.cli import cli
 from insertnerf_cli.config import ModelConfig, config_to_json
+from insertnerf_cli.model import InsertNeRF
 from insertnerf_cli.scenes import write_blender_transforms
 from insertnerf_cli.training import TrainConfig, train
 
@@ -74,6 +75,15 @@ def write_scene(folder: Path, views: int, seed: int) -> None:
                                  extra={"layout": "object"})
 
 
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    """Tiny models on a shared 2-core machine run far faster on one thread than fighting for two."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("dataset")
@@ -100,7 +110,7 @@ def small(**changes) -> TrainConfig:
 
 def cli_args(dataset: Path, out: Path, tiny_config: Path, *extra: str) -> list[str]:
     return ["train", str(dataset), "--out", str(out), "--device", "cpu", "--model-config", str(tiny_config),
-            "--rays", "32", "--resolution", str(SIZE), "--val-every", "1", "--ckpt-every", "1", "--log-every", "1", *extra]
+            "--rays", "32", "--resolution", str(SIZE), "--val-every", "1000", "--ckpt-every", "1", "--log-every", "1", *extra]
 
 
 def test_cli_trains_two_steps_then_the_checkpoint_reloads_and_resumes(dataset, tiny_config, tmp_path):
@@ -142,10 +152,10 @@ def test_resumed_training_matches_uninterrupted_training_exactly(dataset, tmp_pa
         assert torch.equal(a.model_state[name], b.model_state[name]), name
     for key in ("torch", "data", "python", "numpy_keys"):
         assert torch.equal(a.train_state.rng[key], b.train_state.rng[key]), key
-    # The training did move the weights.
-    first = read_checkpoint(tmp_path / "straight" / "checkpoints" / "best.pt")
-    assert any(not torch.equal(first.model_state[n], a.model_state[n]) for n in a.model_state) or \
-        first.train_state.step == 4
+    # ... and the steps did move the weights away from the seeded initialisation.
+    torch.manual_seed(small().seed)
+    initial = InsertNeRF(TINY).state_dict()
+    assert any(not torch.equal(initial[n], a.model_state[n]) for n in initial)
 
 
 def one_line_error(result) -> str:
