@@ -132,6 +132,24 @@ def test_nerfstudio_applied_transform_is_undone(tmp_path: Path, known) -> None:
     torch.testing.assert_close(load_scene(root).cameras.c2w, known.cameras.c2w, atol=1e-9, rtol=0)
 
 
+def test_nerfstudio_bounds_from_its_point_cloud(tmp_path: Path, known) -> None:
+    import trimesh
+
+    root = write_nerfstudio(tmp_path, known)
+    A = torch.tensor([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], dtype=torch.float64)
+    trimesh.PointCloud(known.points @ A[:3, :3].numpy().T).export(root / "sparse_pc.ply")
+
+    def to_nerfstudio(d):
+        d.update({"applied_transform": A[:3].tolist(), "ply_file_path": "sparse_pc.ply"})
+        for f in d["frames"]:
+            f.update({"transform_matrix": (A @ torch.tensor(f["transform_matrix"], dtype=torch.float64)).tolist()})
+            f.pop("near"), f.pop("far")
+    edit_json(root / "transforms.json", to_nerfstudio)
+    scene = load_scene(root)
+    np.testing.assert_allclose(scene.near.numpy(), known.near, atol=1e-6)  # every point is inside every view
+    np.testing.assert_allclose(scene.far.numpy(), known.far, atol=1e-6)
+
+
 def test_nerfstudio_splits_from_filenames(tmp_path: Path, known) -> None:
     root = write_nerfstudio(tmp_path, known)
     edit_json(root / "transforms.json", lambda d: d.update(

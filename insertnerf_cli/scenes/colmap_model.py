@@ -50,19 +50,23 @@ def _distortion(model: str, params: np.ndarray, where: str) -> Distortion | None
 
 
 def _observed_depths(rec, image_ids: list[int], cameras: Cameras) -> list[Tensor] | None:
-    """Per image, depths of the 3D points it observes; None when the model has no observations."""
-    ids = [[p.point3D_id for p in rec.images[i].get_observation_points2D()] for i in image_ids]
-    if not any(ids):
-        if rec.num_points3D() == 0:
-            return None
-        xyz = torch.from_numpy(np.stack([pt.xyz for pt in rec.points3D.values()]))  # [P, 3]
-        return point_depths(cameras, xyz)
-    depths = []
-    for n, point_ids in enumerate(ids):
-        xyz = torch.from_numpy(np.stack([rec.points3D[j].xyz for j in point_ids])) if point_ids \
-            else torch.zeros(0, 3, dtype=torch.float64)
-        depths.append(cameras.subset([n]).project(xyz)[1][0] if point_ids else xyz[:, 0])
-    return depths
+    """Per image, depths of the 3D points it observes; None when the model has no points."""
+    if rec.num_points3D() == 0:
+        return None
+    slot = {image_id: n for n, image_id in enumerate(image_ids)}
+    seen: list[list[int]] = [[] for _ in image_ids]
+    xyz = []
+    for row, point in enumerate(rec.points3D.values()):  # tracks: cost grows with observations, not keypoints
+        xyz.append(point.xyz)
+        for element in point.track.elements:
+            if element.image_id in slot:
+                seen[slot[element.image_id]].append(row)
+    xyz_t = torch.from_numpy(np.stack(xyz))  # [P, 3]
+    if not any(seen):  # points without tracks: use those that project into each image
+        return point_depths(cameras, xyz_t)
+    z_rows = cameras.w2c[:, 2]  # [N, 4]: camera depth = z_row . (x, 1)
+    index = [torch.tensor(rows, dtype=torch.long) for rows in seen]  # indexing with a list is slow
+    return [xyz_t[rows] @ z_rows[n, :3] + z_rows[n, 3] for n, rows in enumerate(index)]
 
 
 def read_colmap(root: Path, images: str, background: tuple[float, float, float]) -> Scene:
@@ -73,12 +77,13 @@ def read_colmap(root: Path, images: str, background: tuple[float, float, float])
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as err:  # noqa: BLE001 - pycolmap raises plain RuntimeError/ValueError on bad files
         raise SceneError(f"cannot read the COLMAP model in {model_dir}: {err}") from None
-    image_ids = sorted((i for i, im in rec.images.items() if im.has_pose), key=lambda i: rec.images[i].name)
-    if not image_ids:
+    # One pass over the images: each rec.images[i] look-up costs a walk over that image's keypoints.
+    registered = sorted(((im.name, i, im) for i, im in rec.images.items() if im.has_pose), key=lambda x: x[0])
+    if not registered:
         raise SceneError(f"{model_dir}: the COLMAP model has no registered images")
+    image_ids = [i for _, i, _ in registered]
     paths, Ks, w2c, sizes, dists = [], [], [], [], []
-    for i in image_ids:
-        im = rec.images[i]
+    for _, _, im in registered:
         cam = rec.cameras[im.camera_id]
         paths.append(safe_path(root, Path(images) / im.name, "image name"))
         dists.append(_distortion(cam.model.name, np.asarray(cam.params), f"{model_dir} camera {im.camera_id}"))

@@ -93,8 +93,14 @@ def bounds_from_depths(depths: list[Tensor], fallback: tuple[Tensor, Tensor]) ->
 
 
 def point_depths(cameras: Cameras, points: Tensor) -> list[Tensor]:
-    """Depths of the points [P, 3] in front of each camera that project inside its image: N tensors [P_i]."""
-    uv, depth = cameras.project(points.to(cameras.dtype))  # [N, P, 2], [N, P]
-    inside = (depth > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= cameras.width) \
-        & (uv[..., 1] >= 0) & (uv[..., 1] <= cameras.height)
-    return [depth[i][inside[i]] for i in range(len(cameras))]
+    """Depths of the points [P, 3] in front of each camera that project inside its image: N tensors [P_i].
+
+    One camera at a time, so memory stays O(P) for large point clouds.
+    """
+    out = []
+    for n in range(len(cameras)):
+        uv, depth = cameras.subset([n]).project(points.to(cameras.dtype))  # [1, P, 2], [1, P]
+        inside = (depth > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= cameras.width) \
+            & (uv[..., 1] >= 0) & (uv[..., 1] <= cameras.height)
+        out.append(depth[inside])
+    return out

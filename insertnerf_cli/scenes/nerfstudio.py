@@ -2,35 +2,54 @@
 
 Intrinsics global or per frame; distortion (OPENCV k1 k2 k3 p1 p2, OPENCV_FISHEYE k1..k4) removed when images
 load, K unchanged; ``applied_transform`` (the rotation nerfstudio applied to the COLMAP world) is inverted so
-poses come back in the original world; ``train_filenames``/``val_filenames``/``test_filenames`` become splits.
+poses come back in the original world; without near/far, bounds come from ``ply_file_path`` points (as
+ns-process-data writes them); ``train_filenames``/``val_filenames``/``test_filenames`` become splits.
 """
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
+from ..cameras import Cameras
 from .base import Scene, SceneError
 from .common import ReadViews, assemble, safe_path
+from .geometry import point_depths
 from .jsonframes import depth_scale, layout_key, load_json, read_frames
 
 FILENAME = "transforms.json"
 
 
-def _undo_applied_transform(c2w: Tensor, meta: dict[str, Any], source: Path) -> Tensor:
-    """c2w [N, 4, 4] in the world before ``applied_transform`` (3x4 or 4x4, new = A @ old)."""
-    if "applied_transform" not in meta:
-        return c2w
+def _applied_transform(meta: dict[str, Any], source: Path) -> Tensor:
+    """nerfstudio's ``applied_transform`` A as [4, 4] (3x4 or 4x4 in the file; new = A @ old), else identity."""
     A = torch.eye(4, dtype=torch.float64)
+    if "applied_transform" not in meta:
+        return A
     try:
         given = torch.tensor(meta["applied_transform"], dtype=torch.float64)
         A[: given.shape[0], :] = given
-        inverse = torch.linalg.inv(A)
+        torch.linalg.inv(A)
     except (TypeError, ValueError, RuntimeError):
         raise SceneError(f"{source}: 'applied_transform' must be a 3x4 or 4x4 invertible matrix") from None
-    return inverse @ c2w
+    return A
+
+
+def _ply_depths(root: Path, meta: dict[str, Any], cameras: Cameras, A_inv: Tensor) -> list[Tensor] | None:
+    """Per-view depths of the points in ``ply_file_path`` (ns-process-data's sparse_pc.ply), None without one."""
+    if "ply_file_path" not in meta:
+        return None
+    path = safe_path(root, meta["ply_file_path"], "ply_file_path")
+    try:
+        import trimesh
+
+        xyz = torch.as_tensor(np.asarray(trimesh.load(path, process=False).vertices), dtype=torch.float64)
+    except Exception as err:  # noqa: BLE001 - trimesh raises many types for a bad or missing file
+        raise SceneError(f"cannot read the point cloud {path}: {err}") from None
+    xyz = xyz @ A_inv[:3, :3].T + A_inv[:3, 3]  # the points were rotated with the poses
+    return point_depths(cameras, xyz) if len(xyz) else None
 
 
 def _splits(root: Path, meta: dict[str, Any], paths: list[Path], source: Path) -> dict[str, list[int]]:
@@ -53,9 +72,14 @@ def read_nerfstudio(root: Path, background: tuple[float, float, float]) -> Scene
     source = root / FILENAME
     meta = load_json(source)
     frames = read_frames(root, [(source, meta)], default_ext=None)
-    views = ReadViews(root=root, paths=frames.paths, K=frames.K,
-                      c2w=_undo_applied_transform(frames.c2w, meta, source), format="nerfstudio",
-                      sizes=frames.sizes, near=frames.near, far=frames.far,
+    A_inv = torch.linalg.inv(_applied_transform(meta, source))
+    c2w = A_inv @ frames.c2w
+    depths = None
+    if frames.near is None:
+        h, w = frames.sizes[0]  # projection needs K and poses; the size only bounds "inside the image"
+        depths = _ply_depths(root, meta, Cameras(frames.K, c2w, h, w), A_inv)
+    views = ReadViews(root=root, paths=frames.paths, K=frames.K, c2w=c2w, format="nerfstudio",
+                      sizes=frames.sizes, near=frames.near, far=frames.far, depths=depths,
                       splits=_splits(root, meta, frames.paths, source), layout=layout_key(meta, source),
                       depth_paths=frames.depth_paths, depth_scale=depth_scale(meta, frames), distortion=frames.distortion)
     return assemble(views, background)
