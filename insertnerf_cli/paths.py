@@ -57,19 +57,17 @@ class CameraPath:
 
 
 def focus_point(cameras: Cameras) -> Tensor:
-    """The point [3] closest (least squares) to every camera's optical axis, as instant-ngp's colmap2nerf does.
+    """The point [3] closest (least squares) to every optical axis, as instant-ngp's colmap2nerf does.
 
-    Falls back to the mean camera centre plus the mean forward direction when the axes are (nearly) parallel,
-    where the least-squares system is singular.
+    When the axes are (nearly) parallel the least-squares system is singular; the fallback is one unit in front
+    of the mean camera centre, along the mean axis.
     """
-    centres, axes = cameras.centers, torch.nn.functional.normalize(cameras.forward, dim=-1)  # [N, 3]
-    eye = torch.eye(3, dtype=centres.dtype, device=centres.device)
-    proj = eye - axes[:, :, None] * axes[:, None, :]  # [N, 3, 3] projects onto the plane normal to each axis
-    lhs, rhs = proj.sum(0), (proj @ centres[:, :, None]).sum(0)[:, 0]
-    # Condition number: parallel axes (forward-facing rigs) leave the depth along them undetermined.
-    if torch.linalg.cond(lhs) > 1e6:
-        return centres.mean(0) + axes.mean(0)
-    return torch.linalg.solve(lhs, rhs)
+    from .scenes.geometry import focus_point as least_squares_focus
+
+    focus = least_squares_focus(cameras)
+    if focus is None:
+        return cameras.centers.mean(0) + torch.nn.functional.normalize(cameras.forward, dim=-1).mean(0)
+    return focus.to(cameras.c2w)
 
 
 def mean_up(cameras: Cameras) -> Tensor:

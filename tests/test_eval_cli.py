@@ -1,0 +1,75 @@
+"""`insertnerf eval` through click's CliRunner: held-out views, references, scores, JSON and side-by-sides."""
+from __future__ import annotations
+
+import json
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+from test_render_cli import make_checkpoint, make_scene, ring_cameras, run
+
+from insertnerf_cli.scenes import load_scene
+from insertnerf_cli.views import nearest_views
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    return make_checkpoint(tmp_path_factory.mktemp("eval") / "tiny.pt")
+
+
+def _eval(scene, ckpt, *extra):
+    return run("eval", scene, "--checkpoint", ckpt, "--device", "cpu", "--resolution", 16, "--views", 3, *extra)
+
+
+def _check_references(report: dict, held: list[int], n: int, k: int) -> None:
+    """Held-out views never serve as references, and each view uses the k nearest of the others."""
+    c2w = ring_cameras(n).c2w
+    assert [v["index"] for v in report["views"]] == held
+    for view in report["views"]:
+        assert not set(view["references"]) & set(held)
+        # As sets: views at equal angles on the ring tie, and rounding decides their order.
+        assert set(view["references"]) == set(nearest_views(c2w[view["index"]], c2w, k, "vector", exclude=held))
+
+
+def test_eval_scores_the_test_split_and_writes_json_and_side_by_sides(checkpoint, tmp_path):
+    scene = make_scene(tmp_path / "scene", {"train": 6, "test": 2})
+    result = _eval(scene, checkpoint, "--json", tmp_path / "scores.json", "--out", tmp_path / "sbs")
+    assert result.exit_code == 0, result.output
+    assert "test/r_0.png: PSNR" in result.output and "mean over 2 held-out views (16x12)" in result.output
+    report = json.loads((tmp_path / "scores.json").read_text())
+    assert {"psnr", "ssim", "views"} <= set(report)
+    _check_references(report, held=[6, 7], n=8, k=3)
+    assert report["psnr"] == pytest.approx(np.mean([v["psnr"] for v in report["views"]]))
+    assert report["ssim"] == pytest.approx(np.mean([v["ssim"] for v in report["views"]]))
+    assert all(np.isfinite(v["psnr"]) and -1 <= v["ssim"] <= 1 for v in report["views"])
+    side = iio.imread(tmp_path / "sbs" / "00006.png")
+    assert side.dtype == np.uint8 and side.shape == (12, 48, 3)
+    # The middle panel is the ground truth photo at the evaluated size.
+    truth = load_scene(scene).load_image(6, 12, 16)
+    np.testing.assert_allclose(side[:, 16:32] / 255.0, truth, atol=1 / 255 + 1e-6)
+
+
+def test_without_a_split_every_8th_view_is_held_out(checkpoint, tmp_path):
+    scene = make_scene(tmp_path / "scene", {"train": 10})
+    # Asking for more views than exist: every non-held-out view serves, and still no held-out one.
+    result = _eval(scene, checkpoint, "--json", tmp_path / "scores.json", "--views", 20)
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "scores.json").read_text())
+    _check_references(report, held=[0, 8], n=10, k=20)
+    assert all(sorted(v["references"]) == [1, 2, 3, 4, 5, 6, 7, 9] for v in report["views"])
+
+
+def test_eval_refuses_to_replace_outputs_without_overwrite(checkpoint, tmp_path):
+    scene = make_scene(tmp_path / "scene", {"train": 6, "test": 1})
+    report = tmp_path / "scores.json"
+    report.write_text("{}")
+    refused = _eval(scene, checkpoint, "--json", report)
+    assert refused.exit_code == 1 and "--overwrite" in refused.output and report.read_text() == "{}"
+    assert _eval(scene, checkpoint, "--json", report, "--overwrite").exit_code == 0
+    assert "views" in json.loads(report.read_text())
+
+
+def test_eval_needs_images_as_large_as_the_ssim_window(checkpoint, tmp_path):
+    scene = make_scene(tmp_path / "scene", {"train": 6, "test": 1})
+    result = run("eval", scene, "--checkpoint", checkpoint, "--device", "cpu", "--resolution", 8)
+    assert result.exit_code == 1 and "SSIM" in result.output and "Traceback" not in result.output
