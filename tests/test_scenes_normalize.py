@@ -11,8 +11,8 @@ from insertnerf_cli.cameras import Cameras
 from insertnerf_cli.scenes import Similarity, load_scene, normalize_scene
 from insertnerf_cli.scenes.geometry import detect_layout, focus_point
 from insertnerf_cli.scenes.normalize import FORWARD_NEAR_FRACTION, OBJECT_RADIUS
-from scene_fixtures import known_scene, look_at, write_images, write_llff, write_nerfstudio
 from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
+from scene_fixtures import known_scene, look_at, write_images, write_llff
 
 OFFSET = torch.tensor([3.0, -1.0, 7.0], dtype=torch.float64)
 SCALE = 0.37
@@ -40,6 +40,7 @@ def test_object_scene_is_centred_on_the_focus_with_radius_4(tmp_path: Path) -> N
     torch.testing.assert_close(normed.near, scene.near * sim.scale)
     torch.testing.assert_close(normed.far, scene.far * sim.scale)
     torch.testing.assert_close(normed.cameras.K, scene.cameras.K)
+    assert normed.depth_scale == pytest.approx(scene.depth_scale * sim.scale)
 
 
 def test_similarity_inverse_and_json_round_trip(tmp_path: Path) -> None:
@@ -71,7 +72,8 @@ def test_similarity_with_rotation_inverts() -> None:
 
 def test_forward_scene_is_centred_on_the_cameras(tmp_path: Path) -> None:
     known = known_scene()
-    poses = [look_at(np.array([x, y, 0.0]) + 5.0, np.array([x, y, 10.0]) + 5.0, np.array([0.0, -1.0, 0.0])) for x in (-1, 1) for y in (-1, 1)]
+    down = np.array([0.0, -1.0, 0.0])
+    poses = [look_at(np.array([x, y, 0.0]) + 5.0, np.array([x, y, 10.0]) + 5.0, down) for x in (-1, 1) for y in (-1, 1)]
     cams = Cameras(known.cameras.K[:4], torch.from_numpy(np.stack(poses)), known.cameras.height, known.cameras.width)
     assert detect_layout(cams) == "forward"
     write_images(tmp_path / "images", known)

@@ -105,7 +105,9 @@ def unify_sizes(views: ReadViews) -> Cameras:
     K = views.K.to(torch.float64).clone()
     for i, (dec, got) in enumerate(zip(declared, files)):
         if not _same_aspect(dec, got):
-            raise SceneError(f"{views.paths[i]}: image is {got[1]}x{got[0]} but its camera is for "
+            turned = " (after its EXIF rotation; the poses may come from unrotated pixels)" \
+                if _same_aspect(dec, got[::-1]) else ""
+            raise SceneError(f"{views.paths[i]}: image is {got[1]}x{got[0]}{turned} but its camera is for "
                              f"{dec[1]}x{dec[0]} (another aspect ratio); re-export the images or the poses")
         K[i] = _scale_K(K[i], dec, got)
     counts = Counter(files)

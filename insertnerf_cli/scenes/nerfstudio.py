@@ -81,5 +81,6 @@ def read_nerfstudio(root: Path, background: tuple[float, float, float]) -> Scene
     views = ReadViews(root=root, paths=frames.paths, K=frames.K, c2w=c2w, format="nerfstudio",
                       sizes=frames.sizes, near=frames.near, far=frames.far, depths=depths,
                       splits=_splits(root, meta, frames.paths, source), layout=layout_key(meta, source),
-                      depth_paths=frames.depth_paths, depth_scale=depth_scale(meta, frames), distortion=frames.distortion)
+                      depth_paths=frames.depth_paths, depth_scale=depth_scale(meta, frames),
+                      distortion=frames.distortion)
     return assemble(views, background)

@@ -6,11 +6,11 @@ The rule (also in docs/formats.md), world orientation kept (no rotation):
   NeRF-Synthetic;
 - forward layout: the centre is the cameras' centroid, and the scale puts the smallest near bound at
   1 / FORWARD_NEAR_FRACTION (LLFF loaders scale so that 0.75 * min(near) = 1).
-near/far are multiplied by the same scale.
+near/far and ``depth_scale`` (so depth files read in the new units) are multiplied by the same scale.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import torch
@@ -93,4 +93,5 @@ def normalize_scene(scene: Scene) -> tuple[Scene, Similarity]:
     else:
         scale = 1.0 / (FORWARD_NEAR_FRACTION * float(scene.near.min()))
     sim = Similarity(torch.eye(3, dtype=torch.float64), -scale * center, scale)
-    return scene.with_cameras(sim.apply_cameras(scene.cameras), scene.near * scale, scene.far * scale), sim
+    normed = scene.with_cameras(sim.apply_cameras(scene.cameras), scene.near * scale, scene.far * scale)
+    return replace(normed, depth_scale=scene.depth_scale * scale), sim  # depth files then read in new units
