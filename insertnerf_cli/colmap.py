@@ -15,7 +15,7 @@ import sys
 import tempfile
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterator, Literal
 
@@ -25,7 +25,7 @@ import torch
 
 from .cameras import Cameras
 from .errors import UserError
-from .posecheck import MIN_PAIR_INLIERS, PairMatches, PoseCheck, check_relative_poses
+from .posecheck import MIN_PAIR_INLIERS, CheckLimits, PairMatches, PoseCheck, check_relative_poses
 from .poses_io import InputImages, ModelArrays, check_output, read_inputs, staging_folder, write_scene
 
 Report = Callable[[str], None]
@@ -36,6 +36,9 @@ WARN_REGISTERED_FRACTION = 0.8
 MIN_REGISTERED = 3
 _GENERAL_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.CALIBRATED,
                     pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED)
+_PLANAR_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.PLANAR,
+                   pycolmap.TwoViewGeometryConfiguration.PANORAMIC,
+                   pycolmap.TwoViewGeometryConfiguration.PLANAR_OR_PANORAMIC)
 
 
 @dataclass(frozen=True)
@@ -50,7 +53,7 @@ class PosesOptions:
         num_threads: CPU threads; 0 = every core this process may use.
         overwrite: replace an existing output folder.
         verbose: let pycolmap print its own log.
-        max_check_deg: largest median disagreement (degrees) with two-view estimates accepted.
+        check: limits of the two-view consistency check (:mod:`insertnerf_cli.posecheck`).
         allow_inconsistent: only warn when the pose check fails (else it is an error).
         check_pairs: at most this many image pairs are compared by the check.
         exhaustive_limit: the "auto" matcher's switch point.
@@ -64,7 +67,7 @@ class PosesOptions:
     num_threads: int = 0
     overwrite: bool = False
     verbose: bool = False
-    max_check_deg: float = 2.0
+    check: CheckLimits = CheckLimits()
     allow_inconsistent: bool = False
     check_pairs: int = 150
     exhaustive_limit: int = 100
@@ -195,7 +198,7 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
         work = tmp / "colmap"
         matcher = _run_features_and_matching(inputs, work / "database.db", options, stages)
         rec, model_dir = _run_mapping(inputs, work, options, stages)
-        check = _run_check(rec, work / "database.db", options, stages)
+        check = _run_check(rec, work / "database.db", inputs, options, stages)
         stages.start("writing the scene", "undistorting to PINHOLE")
         undistorted = _undistort(model_dir, inputs.folder, tmp)
         shutil.rmtree(work / "mapping")
@@ -244,7 +247,11 @@ def _run_features_and_matching(inputs: InputImages, db_path: Path, options: Pose
         pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
                                   device=pycolmap.Device.cpu)
     with pycolmap.Database.open(db_path) as db:
-        stages.done(f"{db.num_verified_image_pairs()} of {db.num_matched_image_pairs()} matched pairs verified")
+        _, geometries = db.read_two_view_geometries()
+        # The mapper ignores pairs with fewer inliers than this, so only those count as usefully matched.
+        min_inliers = pycolmap.IncrementalPipelineOptions().min_num_matches
+        useful = sum(len(g.inlier_matches) >= min_inliers for g in geometries)
+        stages.done(f"{useful} of {db.num_matched_image_pairs()} image pairs share >= {min_inliers} verified matches")
     return matcher
 
 
@@ -278,16 +285,21 @@ def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
     return rec, work / "mapping" / str(best)
 
 
-def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, options: PosesOptions, stages: _Stages) -> PoseCheck:
-    stages.start("checking poses", "relative poses vs independent two-view estimates")
-    check = check_relative_poses(_pair_matches(db_path, rec, options.check_pairs, options.seed),
-                                 options.max_check_deg)
+def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages, options: PosesOptions,
+               stages: _Stages) -> PoseCheck:
+    stages.start("checking poses", "does the model explain each pair's matches as well as a two-view estimate?")
+    # Keypoints are in full-resolution pixels; SIFT saw the image shrunk to max_image_size.
+    shrink = max(1.0, max(inputs.height, inputs.width) / options.max_image_size)
+    limits = replace(options.check, threshold_px=options.check.threshold_px * shrink)
+    check = check_relative_poses(_pair_matches(db_path, rec, options.check_pairs, options.seed), limits)
     stages.done(check.summary())
     if not check.passed:
-        message = (f"the poses disagree with independent two-view estimates ({check.summary()}; limit "
-                   f"{check.max_median_deg:g} deg): repeated texture or symmetric scenes can fool SfM")
+        message = (f"the poses contradict the images' own two-view geometry ({check.summary()}; limits "
+                   f"{100 * limits.max_contradicted_share:g} % and {limits.max_median_deg:g} deg): repeated "
+                   "texture or symmetric scenes probably fooled the matching")
         if not options.allow_inconsistent:
-            raise UserError(message + "; inspect cameras.ply, or pass --allow-inconsistent to keep them anyway.")
+            raise UserError(message + "; add photos that break the symmetry, or pass --allow-inconsistent to "
+                            "keep these poses anyway.")
         stages.report(f"warning: {message}.")
     return check
 
@@ -297,15 +309,15 @@ def _pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int,
     poses = {i: _cam_from_world(img) for i, img in rec.images.items() if img.has_pose}
     with pycolmap.Database.open(db_path) as db:
         pair_ids, geometries = db.read_two_view_geometries()
-        # Planar or pure-rotation pairs have no unique essential matrix: COLMAP's classification excludes them.
-        pairs = [pycolmap.pair_id_to_image_pair(p) for p, g in zip(pair_ids, geometries)
-                 if len(g.inlier_matches) >= MIN_PAIR_INLIERS and g.config in _GENERAL_CONFIGS]
-        pairs = [(a, b) for a, b in pairs if a in poses and b in poses]
+        pairs = [(*pycolmap.pair_id_to_image_pair(p), g.config in _GENERAL_CONFIGS)
+                 for p, g in zip(pair_ids, geometries)
+                 if len(g.inlier_matches) >= MIN_PAIR_INLIERS and g.config in _GENERAL_CONFIGS + _PLANAR_CONFIGS]
+        pairs = [(a, b, general) for a, b, general in pairs if a in poses and b in poses]
         if len(pairs) > max_pairs:  # a spread-out sample; every pair would cost seconds on large sets
             pick = np.random.default_rng(seed).choice(len(pairs), size=max_pairs, replace=False)
             pairs = [pairs[i] for i in sorted(pick)]
         out = []
-        for a, b in pairs:
+        for a, b, general in pairs:
             matches = db.read_matches(a, b).astype(np.int64)  # [M, 2]
             cams = rec.images[a].camera, rec.images[b].camera
             pts = [cam.cam_from_img(db.read_keypoints(i)[idx, :2].astype(np.float64))
@@ -313,7 +325,7 @@ def _pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int,
             r1, t1, r2, t2 = poses[a][:, :3], poses[a][:, 3], poses[b][:, :3], poses[b][:, 3]
             rot = r2 @ r1.T
             out.append(PairMatches((rec.images[a].name, rec.images[b].name), pts[0], pts[1], rot,
-                                   t2 - rot @ t1, float(cams[0].mean_focal_length())))
+                                   t2 - rot @ t1, float(cams[0].mean_focal_length()), general))
     return out
 
 

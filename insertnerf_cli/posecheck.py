@@ -1,11 +1,16 @@
 """A check of SfM poses that does not trust the reprojection error.
 
 A bundle adjustment can reach a sub-pixel reprojection error on a wrong trajectory: with repeated texture,
-wrong matches are made consistent by moving whole groups of cameras (we saw 0.14 px with a 23 deg offset).
-Here, for many image pairs, an independent two-view estimate (OpenCV's five-point essential matrix + USAC on
-the raw descriptor matches, not on COLMAP's verified inliers) gives a relative rotation and a direction of
-travel; the reconstruction's own relative pose must agree with it. A wrong pair here and there is noise; a large
-*median* disagreement means the reconstruction contradicts what most pairs of images say.
+wrong matches between look-alike surfaces are made consistent by bending the trajectory (reproduced in
+bench/poses_trap.py: 24/24 registered at 0.31 px, cameras 23 deg off). Comparing relative rotations alone does
+not see it: neighbouring views stay consistent with each other while the loop is torn elsewhere.
+
+What does see it: for every image pair with enough matches, an independent two-view estimate (OpenCV's
+five-point essential matrix with USAC, on the raw descriptor matches rather than COLMAP's verified inliers) says
+how many of the pair's matches one rigid motion can explain. The reconstruction's relative pose of the same pair
+must explain about as many. On correct reconstructions it explains 99-100 % of them on every pair; on the trap,
+18 % of the pairs were explained at under 20 %: those pairs saw the scene one way and the model put them
+another. The median relative-rotation difference over non-planar pairs is reported too.
 """
 from __future__ import annotations
 
@@ -29,6 +34,8 @@ class PairMatches:
         rotation: [3, 3] reconstruction's cam2_from_cam1 rotation.
         translation: [3] reconstruction's cam2_from_cam1 translation (any scale).
         pixel_scale: focal length in pixels, to express a pixel threshold in normalised units.
+        general: False for pairs COLMAP classified as planar or pure rotation, whose essential matrix (and so
+            rotation) is ambiguous; their matches still count in the contradiction measure.
     """
 
     names: tuple[str, str]
@@ -37,6 +44,7 @@ class PairMatches:
     rotation: np.ndarray  # [3, 3]
     translation: np.ndarray  # [3]
     pixel_scale: float
+    general: bool = True
 
 
 @dataclass(frozen=True)
@@ -44,35 +52,57 @@ class PoseCheck:
     """Agreement of the reconstruction with independent two-view estimates.
 
     Attributes:
-        pairs: number of image pairs compared (0 = nothing to compare, the check is inconclusive).
-        median_rotation_deg, p90_rotation_deg: disagreement of relative rotations, degrees.
-        median_direction_deg: disagreement of the directions of travel, degrees.
-        max_median_deg: the threshold the medians were held to.
+        pairs: image pairs compared (0 = nothing to compare: the check is inconclusive).
+        contradicted: pairs whose matches the reconstruction's relative pose explains less than half as well as
+            the pair's own two-view estimate does.
+        median_rotation_deg: median disagreement of relative rotations over non-planar pairs (NaN if none).
+        max_contradicted_share, max_median_deg: the limits.
     """
 
     pairs: int
+    contradicted: int
     median_rotation_deg: float
-    p90_rotation_deg: float
-    median_direction_deg: float
+    max_contradicted_share: float
     max_median_deg: float
 
     @property
+    def contradicted_share(self) -> float:
+        return self.contradicted / self.pairs if self.pairs else 0.0
+
+    @property
     def passed(self) -> bool:
-        """True when the medians are under the threshold (or nothing could be compared)."""
-        return self.pairs == 0 or (self.median_rotation_deg <= self.max_median_deg
-                                   and self.median_direction_deg <= DIRECTION_FACTOR * self.max_median_deg)
+        """True when both measures are within their limits (or nothing could be compared)."""
+        rotation_ok = not self.median_rotation_deg > self.max_median_deg  # NaN (no general pair) passes
+        return self.contradicted_share <= self.max_contradicted_share and rotation_ok
 
     def summary(self) -> str:
         if self.pairs == 0:
             return "no image pair had enough matches to compare (check inconclusive)"
-        return (f"{self.pairs} pairs, relative rotation off by {self.median_rotation_deg:.2f} deg median "
-                f"({self.p90_rotation_deg:.2f} deg 90th pct), direction of travel by "
-                f"{self.median_direction_deg:.2f} deg median")
+        return (f"{self.contradicted} of {self.pairs} pairs contradict the poses "
+                f"({100 * self.contradicted_share:.0f} %), relative rotations off by "
+                f"{self.median_rotation_deg:.2f} deg median")
 
 
-# The direction of travel between two views is less well determined than their rotation (short baselines), so
-# its median is held to a looser bound.
-DIRECTION_FACTOR = 5.0
+@dataclass(frozen=True)
+class CheckLimits:
+    """Thresholds of :func:`check_relative_poses`.
+
+    Attributes:
+        threshold_px: epipolar (Sampson) inlier threshold of the two-view estimate, pixels; the reconstruction
+            is allowed twice as much, since one pose serves many pairs.
+        max_contradicted_share: largest share of pairs the reconstruction may contradict.
+        max_median_deg: largest median rotation disagreement over non-planar pairs.
+    """
+
+    threshold_px: float = 1.5
+    max_contradicted_share: float = 0.10
+    max_median_deg: float = 5.0
+
+
+# A pair is contradicted when the reconstruction explains fewer than this fraction of the matches its own
+# two-view estimate explains (measured: 0.99-1.0 on every pair of correct reconstructions, 0.0-0.2 on the
+# contradicted pairs of the repeated-texture trap).
+EXPLAINED_FRACTION = 0.5
 
 
 def rotation_angle_deg(rotation: np.ndarray) -> float:
@@ -80,8 +110,22 @@ def rotation_angle_deg(rotation: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def two_view_pose(pair: PairMatches, threshold_px: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray] | None:
-    """OpenCV's relative pose (R [3, 3], unit t [3], cam2_from_cam1) from the pair's matches, or None if weak."""
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def sampson_distance(E: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """First-order geometric distance [M] of matches x1, x2 [M, 2] (normalised coordinates) to E [3, 3]."""
+    X1 = np.column_stack([x1, np.ones(len(x1))])
+    X2 = np.column_stack([x2, np.ones(len(x2))])
+    Ex1, Etx2 = X1 @ E.T, X2 @ E  # [M, 3] epipolar lines in image 2 and image 1
+    residual = np.sum(X2 * Ex1, axis=1)
+    norm = Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2
+    return np.abs(residual) / np.sqrt(np.maximum(norm, 1e-300))
+
+
+def two_view_pose(pair: PairMatches, threshold_px: float, seed: int = 0) -> tuple[np.ndarray, int] | None:
+    """OpenCV's relative rotation R [3, 3] (cam2_from_cam1) and its inlier count, or None if too weak."""
     if len(pair.points1) < MIN_PAIR_INLIERS:
         return None
     cv2.setRNGSeed(seed)  # RANSAC draws from OpenCV's global generator; fix it so the check is repeatable
@@ -91,38 +135,29 @@ def two_view_pose(pair: PairMatches, threshold_px: float, seed: int = 0) -> tupl
                                    threshold=threshold_px / pair.pixel_scale)
     if E is None or E.shape != (3, 3) or int(mask.sum()) < MIN_PAIR_INLIERS:
         return None
-    inliers, R, t, _ = cv2.recoverPose(E, pair.points1, pair.points2, np.eye(3), mask=mask)
-    if inliers < MIN_PAIR_INLIERS:
-        return None
-    return R, t.reshape(3) / np.linalg.norm(t)
+    _, R, _, _ = cv2.recoverPose(E, pair.points1, pair.points2, np.eye(3), mask=mask)
+    return R, int(mask.sum())
 
 
-def _direction_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle between two translation directions [3]; the sign is fixed by the cheirality check of both."""
-    na, nb = np.linalg.norm(a), np.linalg.norm(b)
-    if na == 0 or nb == 0:
-        return 180.0
-    return float(np.degrees(np.arccos(np.clip(a @ b / (na * nb), -1.0, 1.0))))
+def check_relative_poses(pairs: Sequence[PairMatches], limits: CheckLimits = CheckLimits()) -> PoseCheck:
+    """Compare the reconstruction's relative pose of every pair with the pair's own two-view estimate.
 
-
-def check_relative_poses(pairs: Sequence[PairMatches], max_median_deg: float,
-                         threshold_px: float = 1.0) -> PoseCheck:
-    """Compare the reconstruction's relative poses with OpenCV two-view estimates on every pair.
-
-    Args:
-        pairs: image pairs with their raw matches and the reconstruction's relative pose.
-        max_median_deg: the largest median rotation disagreement accepted.
-        threshold_px: RANSAC inlier threshold of the two-view estimate, pixels.
+    Two measures: how many pairs' matches the reconstruction fails to explain (catches trajectories bent by
+    wrong matches, whatever the scene's geometry) and, over non-planar pairs, the median relative-rotation
+    difference.
     """
-    rot_err, dir_err = [], []
+    contradicted, rot_err, compared = 0, [], 0
     for pair in pairs:
-        est = two_view_pose(pair, threshold_px)
+        est = two_view_pose(pair, limits.threshold_px)
         if est is None:
             continue
-        R, t = est
-        rot_err.append(rotation_angle_deg(R.T @ pair.rotation))
-        dir_err.append(_direction_angle_deg(t, pair.translation))
-    if not rot_err:
-        return PoseCheck(0, 0.0, 0.0, 0.0, max_median_deg)
-    return PoseCheck(len(rot_err), float(np.median(rot_err)), float(np.percentile(rot_err, 90)),
-                     float(np.median(dir_err)), max_median_deg)
+        R, two_view_inliers = est
+        compared += 1
+        t = pair.translation / max(float(np.linalg.norm(pair.translation)), 1e-300)
+        dist = sampson_distance(_skew(t) @ pair.rotation, pair.points1, pair.points2) * pair.pixel_scale
+        explained = int((dist < 2.0 * limits.threshold_px).sum())
+        contradicted += explained < EXPLAINED_FRACTION * two_view_inliers
+        if pair.general:
+            rot_err.append(rotation_angle_deg(R.T @ pair.rotation))
+    median = float(np.median(rot_err)) if rot_err else float("nan")
+    return PoseCheck(compared, contradicted, median, limits.max_contradicted_share, limits.max_median_deg)

@@ -1,0 +1,194 @@
+"""`insertnerf poses`: failures are one clear line with nothing half-written; previews and the pose check behave."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+import trimesh
+from click.testing import CliRunner
+
+from insertnerf_cli.cameras import Cameras, intrinsics
+from insertnerf_cli.cli import cli
+from insertnerf_cli.commands.poses import default_out
+from insertnerf_cli.posecheck import CheckLimits, PairMatches, check_relative_poses, rotation_angle_deg
+from insertnerf_cli.preview import frustum_mesh, write_camera_frustums, write_point_cloud
+
+
+def _noise_images(folder: Path, count: int, size: tuple[int, int] = (96, 128), seed: int = 0) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    paths = []
+    for i in range(count):
+        path = folder / f"noise_{i:02d}.png"
+        cv2.imwrite(str(path), rng.integers(0, 256, size=(*size, 3), dtype=np.uint8))
+        paths.append(path)
+    return paths
+
+
+def _run(*args: str):
+    return CliRunner().invoke(cli, ["poses", *args])
+
+
+def _assert_one_line_error(result, *fragments: str) -> None:
+    assert result.exit_code != 0
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    assert "Traceback" not in result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1, result.output
+    for fragment in fragments:
+        assert fragment in errors[0], errors[0]
+
+
+def _only_inputs_left(parent: Path, *kept: str) -> None:
+    """Nothing but ``kept`` in ``parent``: no output folder, no temporary folder left behind."""
+    assert sorted(p.name for p in parent.iterdir()) == sorted(kept)
+
+
+def test_three_noise_images_fail_cleanly(tmp_path: Path) -> None:
+    _noise_images(tmp_path / "photos", 3)
+    result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
+    _assert_one_line_error(result, "could not build any model")
+    _only_inputs_left(tmp_path, "photos")
+
+
+def test_fewer_than_three_images(tmp_path: Path) -> None:
+    _noise_images(tmp_path / "photos", 2)
+    (tmp_path / "photos" / "notes.txt").write_text("not an image")
+    result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
+    _assert_one_line_error(result, "found 2 image(s)", "at least 3")
+    _only_inputs_left(tmp_path, "photos")
+
+
+def test_unreadable_files_are_named(tmp_path: Path) -> None:
+    _noise_images(tmp_path / "photos", 4)
+    (tmp_path / "photos" / "broken.jpg").write_bytes(b"\xff\xd8\xff not really a jpeg")
+    (tmp_path / "photos" / "empty.png").write_bytes(b"")
+    result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
+    _assert_one_line_error(result, "cannot read 2 file(s)", "broken.jpg", "empty.png")
+    _only_inputs_left(tmp_path, "photos")
+
+
+def test_mixed_image_sizes_are_refused(tmp_path: Path) -> None:
+    _noise_images(tmp_path / "photos", 3)
+    cv2.imwrite(str(tmp_path / "photos" / "other.png"), np.zeros((50, 60, 3), np.uint8))
+    result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
+    _assert_one_line_error(result, "2 different sizes", "60x50")
+
+
+def test_existing_output_is_kept_without_overwrite(tmp_path: Path) -> None:
+    _noise_images(tmp_path / "photos", 3)
+    (tmp_path / "scene").mkdir()
+    (tmp_path / "scene" / "precious.txt").write_text("keep me")
+    result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
+    _assert_one_line_error(result, "already exists", "--overwrite")
+    assert (tmp_path / "scene" / "precious.txt").read_text() == "keep me"
+
+
+def test_failed_overwrite_keeps_previous_output(tmp_path: Path) -> None:
+    _noise_images(tmp_path / "photos", 3)
+    (tmp_path / "scene").mkdir()
+    (tmp_path / "scene" / "transforms.json").write_text("{}")
+    result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"), "--overwrite")
+    _assert_one_line_error(result, "could not build any model")
+    assert (tmp_path / "scene" / "transforms.json").read_text() == "{}"
+    _only_inputs_left(tmp_path, "photos", "scene")
+
+
+def test_output_that_contains_the_inputs_is_refused(tmp_path: Path) -> None:
+    _noise_images(tmp_path / "scene" / "images", 3)
+    result = _run(str(tmp_path / "scene" / "images"), "--out", str(tmp_path / "scene"), "--overwrite")
+    _assert_one_line_error(result, "contains the input images")
+    assert len(list((tmp_path / "scene" / "images").iterdir())) == 3
+
+
+def test_default_out_is_a_sibling(tmp_path: Path) -> None:
+    assert default_out(tmp_path / "photos") == tmp_path.resolve() / "photos_scene"
+
+
+# ---------------------------------------------------------------- the two-view check, on exact geometry
+def _two_views(rotation_deg: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points seen by two cameras: camera 2 = rotate about y by ``rotation_deg`` and step sideways.
+
+    Returns normalised points [M, 2] in both views and the true cam2_from_cam1 (R [3, 3], t [3]).
+    """
+    rng = np.random.default_rng(seed)
+    pts = np.column_stack([rng.uniform(-1, 1, 200), rng.uniform(-1, 1, 200), rng.uniform(3, 6, 200)])  # cam 1
+    a = math.radians(rotation_deg)
+    rot = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    t = np.array([-0.5, 0.05, 0.1])
+    cam2 = pts @ rot.T + t
+    return pts[:, :2] / pts[:, 2:], cam2[:, :2] / cam2[:, 2:], rot, t
+
+
+def test_pose_check_accepts_the_truth() -> None:
+    p1, p2, rot, t = _two_views(10.0)
+    good = PairMatches(("a", "b"), p1, p2, rot, t * 3.0, pixel_scale=500.0)  # the scale of t is free
+    check = check_relative_poses([good] * 3)
+    assert check.pairs == 3 and check.contradicted == 0 and check.passed
+    assert check.median_rotation_deg < 0.05
+
+
+def test_pose_check_rejects_a_wrong_relative_pose() -> None:
+    p1, p2, rot, t = _two_views(10.0)
+    wrong_rot = _two_views(30.0)[2]  # the reconstruction claims 30 deg where the images say 10
+    bad = PairMatches(("a", "b"), p1, p2, wrong_rot, t, pixel_scale=500.0)
+    check = check_relative_poses([bad] * 3)
+    assert check.contradicted == 3 and not check.passed
+    assert check.median_rotation_deg == pytest.approx(rotation_angle_deg(wrong_rot.T @ rot), abs=0.05)
+
+
+def test_pose_check_counts_planar_pairs_only_in_the_contradiction_measure() -> None:
+    p1, p2, rot, t = _two_views(10.0)
+    flipped = PairMatches(("a", "b"), p1, p2, rot, -t + np.array([0.0, 0.4, 0.0]), 500.0, general=False)
+    check = check_relative_poses([flipped])
+    assert check.contradicted == 1 and math.isnan(check.median_rotation_deg) and not check.passed
+
+
+def test_pose_check_tolerates_a_few_contradicted_pairs() -> None:
+    p1, p2, rot, t = _two_views(10.0)
+    good = PairMatches(("a", "b"), p1, p2, rot, t, 500.0)
+    bad = PairMatches(("a", "c"), p1, p2, _two_views(25.0)[2], t, 500.0)
+    limits = CheckLimits(max_contradicted_share=0.1, max_median_deg=5.0)
+    assert check_relative_poses([good] * 19 + [bad], limits).passed  # 5 % contradicted
+    assert not check_relative_poses([good] * 7 + [bad] * 3, limits).passed  # 30 %
+
+
+def test_pose_check_with_too_few_matches_is_inconclusive() -> None:
+    p1, p2, rot, t = _two_views(5.0)
+    check = check_relative_poses([PairMatches(("a", "b"), p1[:10], p2[:10], rot, t, 500.0)])
+    assert check.pairs == 0 and check.passed and "inconclusive" in check.summary()
+
+
+# ---------------------------------------------------------------- previews
+def _ring(n: int) -> Cameras:
+    c2w = torch.eye(4, dtype=torch.float64).repeat(n, 1, 1)
+    for i in range(n):
+        c2w[i, 0, 3] = float(i)  # cameras 1 unit apart along x, looking down +z
+    return Cameras(intrinsics(50.0, 50.0, 32.0, 24.0).expand(n, 3, 3).clone(), c2w, 48, 64)
+
+
+def test_frustum_mesh_apex_and_base(tmp_path: Path) -> None:
+    cameras = _ring(3)
+    mesh = frustum_mesh(cameras, depth=0.5)
+    vertices = mesh.vertices.reshape(3, 6, 3)
+    assert np.allclose(vertices[:, 0], cameras.centers.numpy())  # apex at each centre
+    assert np.allclose(vertices[:, 1:5, 2], 0.5)  # base corners at the requested depth
+    # The top-left corner of the image is at -cx/fx, -cy/fy on the z = 1 plane (OpenCV: y down).
+    assert np.allclose(vertices[0, 1, :2], [-32 / 50 * 0.5, -24 / 50 * 0.5])
+    assert vertices[0, 5, 1] < vertices[0, 1, 1]  # the up tab sits above the top edge (smaller y)
+    write_camera_frustums(tmp_path / "cameras.ply", cameras)
+    loaded = trimesh.load(tmp_path / "cameras.ply", process=False)
+    assert len(loaded.faces) == 3 * 5 and len(loaded.vertices) == 3 * 6
+
+
+def test_point_cloud_round_trip(tmp_path: Path) -> None:
+    xyz = np.random.default_rng(0).normal(size=(20, 3))
+    rgb = np.random.default_rng(1).integers(0, 256, size=(20, 3), dtype=np.uint8)
+    write_point_cloud(tmp_path / "sparse.ply", xyz, rgb)
+    cloud = trimesh.load(tmp_path / "sparse.ply")
+    assert np.allclose(cloud.vertices, xyz)
+    assert np.array_equal(np.asarray(cloud.colors)[:, :3], rgb)
