@@ -24,7 +24,7 @@ class ModelConfig:
 
     # --- U-Net encoder
     encoder_widths: tuple[int, ...] = (16, 24, 32, 48)  # channels at 1/2, 1/4, 1/8, 1/16 of the image
-    feature_dims: tuple[int, int, int] = (24, 16, 8)  # output features at 1/8, 1/4, 1/2 (paper: coarse is widest)
+    feature_dims: tuple[int, int, int] = (16, 8, 8)  # output features at 1/8, 1/4, 1/2 (paper: coarse is widest)
     backbone_decoder_width: int = 8  # the small decoder used only by the reconstruction loss
     # --- multi-layer dynamic-static aggregation
     aggregate_hidden: int = 8  # hidden width of the dynamic-weight MLP (per view, so kept small)
@@ -34,7 +34,7 @@ class ModelConfig:
     nerf_layers: int = 4  # geometry layers, each preceded by a HyperNet module
     appearance_width: int = 32
     z_branches: int = 2  # progressive appearance hyper branches (paper Table 9: 2 is the sweet spot)
-    film_hidden: int = 32  # hidden width of the DFiLM frequency/shift MLP
+    film_hidden: int = 16  # hidden width of the DFiLM frequency/shift MLP
     conditioning: Literal["hyper", "concat"] = "hyper"  # "concat": the feature-concatenation ablation
     # --- sampling and encodings
     samples_coarse: int = 64

@@ -43,11 +43,12 @@ class UNetEncoder(nn.Module):
         for level in reversed(range(LEVELS - 1)):
             self.up.append(_conv(below + widths[level], widths[level]))
             below = widths[level]
-        self.heads = nn.ModuleList(nn.Conv2d(widths[level], dim, 1)
+        # Non-negative features (ReLU heads): with zeros for views that miss a sample, a plain max over views
+        # is the max over the valid ones (see aggregate.py).
+        self.heads = nn.ModuleList(nn.Sequential(nn.Conv2d(widths[level], dim, 1), nn.ReLU())
                                    for level, dim in zip(reversed(range(LEVELS - 1)), feature_dims))
-        finest = feature_dims[-1]
         self.decoder = nn.Sequential(nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False),
-                                     _conv(finest, decoder_width), nn.Conv2d(decoder_width, 3, 3, padding=1),
+                                     _conv(feature_dims[-1], decoder_width), nn.Conv2d(decoder_width, 3, 3, padding=1),
                                      nn.Sigmoid())
 
     def forward(self, images: Tensor) -> tuple[Tensor, ...]:

@@ -24,10 +24,11 @@ class InsertNeRF(nn.Module):
         self.config = config
         cfg = config
         self.encoder = UNetEncoder(cfg.encoder_widths, cfg.feature_dims, cfg.backbone_decoder_width)
-        colour_dim = 3  # each scale's per-view input is its U-Net feature plus the reference colour
+        # The reference colour joins the finest scale only: it is a full-resolution signal.
+        in_dims = [*cfg.feature_dims[:-1], cfg.feature_dims[-1] + 3]
         self.aggregators = nn.ModuleList(
-            ScaleAggregator(dim + colour_dim, dim // 2, cfg.aggregate_hidden, cfg.static_sharpness_init)
-            for dim in cfg.feature_dims)
+            ScaleAggregator(in_dim, dim // 2, cfg.aggregate_hidden, cfg.static_sharpness_init)
+            for in_dim, dim in zip(in_dims, cfg.feature_dims))
         cond_dims = [agg.out_dim for agg in self.aggregators]
         self.coarse_head = NeRFHead(cfg, cond_dims, cfg.samples_coarse)
         # Shared by default: on a CPU budget one head gets the gradients of both passes (see docs/model.md).
@@ -66,11 +67,13 @@ class InsertNeRF(nn.Module):
         Returns the composite and the dynamic-weight colour [R, 3] composited with the detached weights.
         """
         points = samples.points(rays)  # [R, S, 3]
+        rays_n, samples_n = points.shape[:2]
         seen = project_samples(encoded, points, rays.directions)
-        conds, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in
-                                zip(self.aggregators, self._with_colour(seen.features, seen.colours))))
-        dynamic = torch.stack(dynamics).mean(dim=0)  # [V, R, S, 1], averaged over scales
-        reference = (dynamic * seen.colours).sum(dim=0)  # [R, S, 3]
+        inputs = [*seen.features[:-1], torch.cat([seen.features[-1], seen.colours], dim=1)]  # [V, C_l, P]
+        descriptors, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in zip(self.aggregators, inputs)))
+        conds = [d.reshape(rays_n, samples_n, -1) for d in descriptors]  # [R, S, D_l]
+        dynamic = torch.stack(dynamics).mean(dim=0)  # [V, 1, P], averaged over scales
+        reference = (dynamic * seen.colours).sum(dim=0).T.reshape(rays_n, samples_n, 3)  # [R, S, 3]
         field = head(points, rays.directions, conds)
         colour = field.colour
         if self.config.blend_reference_colour:
@@ -78,10 +81,6 @@ class InsertNeRF(nn.Module):
         weights = composite_weights(field.density, samples.edges, rays.directions.norm(dim=-1))
         main = composite(weights, colour, samples.t, self.background)
         return main, composite(weights.detach(), reference, samples.t, self.background).rgb
-
-    @staticmethod
-    def _with_colour(features: tuple[Tensor, ...], colours: Tensor) -> list[Tensor]:
-        return [torch.cat([f, colours], dim=-1) for f in features]  # [V, R, S, C_l + 3]
 
     def losses(self, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews) -> LossTerms:
         """Colour MSE on both passes + weighted backbone and dynamic-weight losses (see losses.py)."""
