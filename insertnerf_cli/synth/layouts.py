@@ -1,0 +1,137 @@
+"""Camera rigs for the three layouts, as :class:`~insertnerf_cli.cameras.Cameras` (OpenCV c2w, world z up).
+
+* object: cameras on a sphere or upper hemisphere around the subject, looking at it (NeRF-Synthetic).
+* 360: a hand-held orbit around the subject at a wobbling height and distance, inside the enclosure.
+* forward: cameras on a small plane facing +y, parallel or converging (LLFF).
+
+Every rig shares one pinhole K with fx = fy and the principal point at the image centre; the focal length
+and the aspect ratio are drawn per scene.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..cameras import Cameras, intrinsics
+from .world import Stage
+
+# Field of view of the image's long side, degrees: from a short tele (NeRF-Synthetic is 39.6) to a phone's wide.
+FOV_RANGE = (35.0, 75.0)
+_UP = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Image size and focal length of a rig (pixels)."""
+
+    height: int
+    width: int
+    focal: float
+
+    @property
+    def short_half_fov(self) -> float:
+        """Half the field of view (radians) of the image's short side."""
+        return float(np.arctan(0.5 * min(self.height, self.width) / self.focal))
+
+
+def random_frame(rng: np.random.Generator, long_side: int, aspects: tuple[float, ...]) -> Frame:
+    """Draw an aspect ratio (landscape 70%, portrait 30%) and a focal length for a ``long_side`` image."""
+    aspect = float(aspects[rng.integers(len(aspects))])
+    short = max(1, int(round(long_side / aspect)))
+    height, width = (short, long_side) if rng.random() < 0.7 else (long_side, short)
+    fov = np.radians(rng.uniform(*FOV_RANGE))
+    return Frame(height, width, float(0.5 * long_side / np.tan(fov / 2)))
+
+
+def look_at(eyes: np.ndarray, targets: np.ndarray, roll: np.ndarray) -> np.ndarray:
+    """OpenCV camera-to-world [N, 4, 4] at ``eyes`` [N, 3] looking at ``targets`` [N, 3], z up, then rolled.
+
+    With world z up, x = forward x up points right and y = forward x right points down (OpenCV).
+    """
+    forward = targets - eyes
+    forward /= np.linalg.norm(forward, axis=1, keepdims=True)
+    # Looking straight up or down leaves "right" undefined: fall back to the world y axis as up.
+    up = np.where(np.abs(forward @ _UP)[:, None] > 0.999, np.array([0.0, 1.0, 0.0]), _UP)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    down = np.cross(forward, right)
+    c, s = np.cos(roll)[:, None], np.sin(roll)[:, None]
+    right, down = c * right + s * down, c * down - s * right
+    c2w = np.tile(np.eye(4), (len(eyes), 1, 1))
+    c2w[:, :3, 0], c2w[:, :3, 1], c2w[:, :3, 2], c2w[:, :3, 3] = right, down, forward, eyes
+    return c2w
+
+
+def _cameras(frame: Frame, c2w: np.ndarray) -> Cameras:
+    K = intrinsics(frame.focal, frame.focal, frame.width / 2, frame.height / 2)
+    return Cameras(K.expand(len(c2w), 3, 3).clone(), torch.from_numpy(c2w), frame.height, frame.width)
+
+
+def _fit_distance(rng: np.random.Generator, frame: Frame, radius: float) -> float:
+    """Distance at which a sphere of ``radius`` fills 55-90% of the short side's half field of view."""
+    return float(radius / np.sin(rng.uniform(0.55, 0.9) * frame.short_half_fov))
+
+
+def object_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int) -> Cameras:
+    """Cameras on a sphere (or the upper hemisphere when there is a ground) looking at the subject."""
+    distance = _fit_distance(rng, frame, stage.radius)
+    lowest = -1.0 if stage.ground is None and rng.random() < 0.5 else np.sin(np.radians(rng.uniform(0, 15)))
+    z = rng.uniform(lowest, 0.98, views)  # uniform in z = uniform on the sphere's area
+    azimuth = rng.uniform(0, 2 * np.pi, views)
+    radial = np.sqrt(1 - z ** 2)
+    directions = np.stack([radial * np.cos(azimuth), radial * np.sin(azimuth), z], axis=1)
+    jitter = rng.uniform(0.9, 1.1, views)[:, None] if rng.random() < 0.5 else 1.0
+    eyes = stage.center + distance * jitter * directions
+    targets = stage.center + rng.normal(0, 0.05 * stage.radius, (views, 3))
+    return _cameras(frame, look_at(eyes, targets, np.zeros(views)))
+
+
+def orbit_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int) -> Cameras:
+    """A hand-held orbit: one or two loops around the subject with wobbling radius, height and aim."""
+    distance = min(_fit_distance(rng, frame, stage.radius), stage.limit)
+    loops = 1 if rng.random() < 0.7 else 2
+    azimuth = rng.uniform(0, 2 * np.pi) + np.linspace(0, 2 * np.pi * loops, views, endpoint=False)
+    azimuth += rng.normal(0, 0.3 * np.pi / views, views)
+    base_elevation = np.radians(rng.uniform(5, 40))
+    loop_offset = np.where(np.arange(views) * loops // views == 1, np.radians(rng.uniform(10, 25)), 0.0)
+    elevation = base_elevation + loop_offset + np.radians(rng.normal(0, 3, views))
+    radius = distance * (1 + 0.08 * np.sin(azimuth * rng.integers(1, 4) + rng.uniform(0, 6)))
+    eyes = stage.center + radius[:, None] * np.stack(
+        [np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)], axis=1)
+    if stage.ground is not None:  # a person holds the phone above the floor
+        eyes[:, 2] = np.maximum(eyes[:, 2], stage.ground + 0.3 * stage.radius)
+    targets = stage.center + rng.normal(0, 0.1 * stage.radius, (views, 3))
+    return _cameras(frame, look_at(eyes, targets, np.radians(rng.normal(0, 2, views))))
+
+
+def forward_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int) -> Cameras:
+    """Cameras on a small x-z rectangle around ``stage.center`` facing +y (parallel or converging)."""
+    width = stage.depth * rng.uniform(0.15, 0.45)
+    height = width * rng.uniform(0.3, 0.8)
+    if rng.random() < 0.5:  # a jittered grid, as when stepping a tripod
+        cols = int(np.ceil(np.sqrt(views * width / height)))
+        cell = np.arange(views)
+        grid = np.stack([(cell % cols + 0.5) / cols, (cell // cols + 0.5) / np.ceil(views / cols)], axis=1)
+        offsets = grid - 0.5 + rng.normal(0, 0.05, (views, 2))
+    else:
+        offsets = rng.uniform(-0.5, 0.5, (views, 2))
+    eyes = stage.center + np.stack([offsets[:, 0] * width, np.zeros(views), offsets[:, 1] * height], axis=1)
+    yaw, pitch = np.radians(rng.uniform(-10, 10)), np.radians(rng.uniform(-12, 3))
+    heading = np.array([np.sin(yaw) * np.cos(pitch), np.cos(yaw) * np.cos(pitch), np.sin(pitch)])
+    if rng.random() < 0.5:  # converge on a point in the middle of the scene
+        focus = stage.center + heading * rng.uniform(1.5, 4.0) * stage.depth
+        targets = focus + rng.normal(0, 0.02 * stage.depth, (views, 3))
+    else:  # parallel optical axes with hand-held jitter
+        targets = eyes + heading + rng.normal(0, np.radians(1.5), (views, 3))
+    return _cameras(frame, look_at(eyes, targets, np.radians(rng.normal(0, 1.5, views))))
+
+
+RIGS = {"object": object_rig, "360": orbit_rig, "forward": forward_rig}
+
+
+def held_out_indices(views: int, test_views: int) -> list[int]:
+    """``test_views`` indices spread evenly over ``views`` (held-out views interleave with the training ones)."""
+    test_views = min(max(test_views, 0), views)
+    return [int((i + 0.5) * views / test_views) for i in range(test_views)]

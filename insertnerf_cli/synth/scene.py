@@ -1,0 +1,150 @@
+"""Render one synthetic scene into a Blender-format folder.
+
+Folder contents: ``transforms_train.json`` / ``transforms_test.json`` (OpenGL c2w, ``fl_x fl_y cx cy w h``,
+our ``near``/``far``/``layout`` keys), RGB PNGs ``train/r_000.png``..., ground-truth z-depth as uint16 PNGs in
+millimetres of scene units ``depth/<split>/r_000.png`` (0 = no surface) referenced by ``depth_file_path``,
+and ``scene.json`` (what was drawn, for people and for rebuilding).
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..cameras import Cameras
+from ..scenes.writers import write_blender_transforms
+from .capture import CaptureOptions, develop, draw_settings
+from .compose import COMPOSERS
+from .layouts import RIGS, held_out_indices, random_frame
+from .raycast import build_scene_mesh
+from .render import auto_exposure, render_view
+from .world import exposed
+
+LAYOUTS = ("object", "forward", "360")
+# Depth files store millimetres of scene units in uint16 (nerfstudio's convention).
+DEPTH_SCALE = 0.001
+# Margins that turn the rendered depth range into near/far bounds valid for every view.
+_NEAR_MARGIN, _FAR_MARGIN = 0.9, 1.1
+# Independent random streams of a scene, so that e.g. more views do not change the world.
+_LAYOUT, _WORLD, _RIG, _CAPTURE, _VIEW = range(5)
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """Everything that decides one scene's pixels: rendering it twice gives identical files.
+
+    Attributes:
+        index: scene number in its dataset; with ``seed`` it seeds every random stream of the scene.
+        seed: the dataset seed (>= 0).
+        layout: "object", "forward" or "360".
+        views: views rendered, of which ``test_views`` are held out in transforms_test.json.
+        resolution: long side of the images in pixels.
+        aspects: image aspect ratios (long / short) to draw from.
+        capture: capture effects switched on.
+    """
+
+    index: int
+    seed: int
+    layout: str
+    views: int
+    test_views: int
+    resolution: int
+    aspects: tuple[float, ...]
+    capture: CaptureOptions
+
+    @property
+    def name(self) -> str:
+        return f"scene_{self.index:05d}"
+
+    def to_json(self) -> dict:
+        return {**asdict(self), "aspects": list(self.aspects), "name": self.name}
+
+    @staticmethod
+    def from_json(data: dict) -> "SceneSpec":
+        fields = {k: v for k, v in data.items() if k != "name"}
+        return SceneSpec(**{**fields, "aspects": tuple(fields["aspects"]), "capture": CaptureOptions(**fields["capture"])})
+
+
+def stream(seed: int, index: int, *key: int) -> np.random.Generator:
+    """The random generator of one stream of one scene (no global state)."""
+    return np.random.default_rng(np.random.SeedSequence([seed, index], spawn_key=key))
+
+
+def draw_layout(seed: int, index: int, layouts: tuple[str, ...] = LAYOUTS) -> str:
+    """The layout of scene ``index`` of a "mixed" dataset."""
+    return str(layouts[stream(seed, index, _LAYOUT).integers(len(layouts))])
+
+
+@dataclass(frozen=True)
+class RenderedScene:
+    """Summary of a rendered scene: views written, wall seconds, near/far bounds."""
+
+    name: str
+    views: int
+    seconds: float
+    near: float
+    far: float
+
+
+def render_scene(spec: SceneSpec, folder: Path) -> RenderedScene:
+    """Render ``spec`` into ``folder`` (created; the caller renames it into place when this returns)."""
+    start = time.perf_counter()
+    world = COMPOSERS[spec.layout](stream(spec.seed, spec.index, _WORLD))
+    mesh = build_scene_mesh(world)
+    rig_rng = stream(spec.seed, spec.index, _RIG)
+    frame = random_frame(rig_rng, spec.resolution, spec.aspects)
+    cameras = RIGS[spec.layout](rig_rng, world.stage, frame, spec.views)
+    exposure = auto_exposure(mesh, world, cameras)
+    world = exposed(world, exposure)
+    settings = draw_settings(stream(spec.seed, spec.index, _CAPTURE), spec.capture)
+    test = set(held_out_indices(spec.views, spec.test_views))
+    splits = {"train": [i for i in range(spec.views) if i not in test], "test": sorted(test)}
+    depth_range = [np.inf, 0.0]
+    for split, indices in splits.items():
+        for k, i in enumerate(indices):
+            view = render_view(mesh, world, cameras[[i]])
+            rgb = develop(view.radiance, settings, stream(spec.seed, spec.index, _VIEW, i))
+            _write_png(folder / split / f"r_{k:03d}.png", rgb[..., ::-1])
+            _write_png(folder / "depth" / split / f"r_{k:03d}.png", encode_depth(view.depth))
+            valid = view.depth[view.depth > 0]
+            if len(valid):
+                depth_range = [min(depth_range[0], valid.min()), max(depth_range[1], valid.max())]
+    near, far = _bounds(depth_range)
+    for split, indices in splits.items():
+        if indices:
+            _write_transforms(folder, split, cameras[indices], spec, near, far)
+    record = {"spec": spec.to_json(), "world": world.description, "exposure": exposure,
+              "frame": asdict(frame), "capture": settings.to_json(), "near": near, "far": far}
+    (folder / "scene.json").write_text(json.dumps(record, indent=2) + "\n")
+    return RenderedScene(spec.name, spec.views, time.perf_counter() - start, near, far)
+
+
+def _bounds(depth_range: list[float]) -> tuple[float, float]:
+    if not np.isfinite(depth_range[0]):  # nothing was hit in any view
+        return 0.1, 10.0
+    return float(depth_range[0] * _NEAR_MARGIN), float(depth_range[1] * _FAR_MARGIN)
+
+
+def encode_depth(depth: np.ndarray) -> np.ndarray:
+    """z-depth [H, W] in scene units -> uint16 millimetres (0 stays 0 = no surface)."""
+    return np.clip(np.rint(depth / DEPTH_SCALE), 0, np.iinfo(np.uint16).max).astype(np.uint16)
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"could not write {path}")
+
+
+def _write_transforms(folder: Path, split: str, cameras: Cameras, spec: SceneSpec, near: float, far: float) -> None:
+    names = [f"{split}/r_{k:03d}.png" for k in range(len(cameras))]
+    depths = [{"depth_file_path": f"depth/{split}/r_{k:03d}.png"} for k in range(len(cameras))]
+    extra = {"layout": "forward" if spec.layout == "forward" else "object", "depth_unit_scale_factor": DEPTH_SCALE,
+             "synth_layout": spec.layout}
+    write_blender_transforms(folder / f"transforms_{split}.json", cameras, names, near=near, far=far, extra=extra,
+                             frame_extras=depths)
+

@@ -1,0 +1,177 @@
+"""The description of one synthetic scene: placed shapes, materials, lights and the camera stage.
+
+A :class:`World` is pure data drawn from a random generator by compose.py; render.py turns it into one
+ray-casting mesh. World axes: z up (as Blender), units such that object-layout subjects have radius ~1.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .drawing import random_texture, sky_image
+from .geometry import PRIMITIVES, THIN, Shape, deformed
+from .implicit import implicit_shape
+from .textures import Texture, srgb_to_linear
+
+Mapping = Literal["triplanar", "sky"]
+LightKind = Literal["directional", "point"]
+
+
+@dataclass(frozen=True)
+class Material:
+    """Surface appearance.
+
+    Attributes:
+        texture: linear-RGB albedo pyramid.
+        tile: world units covered by one texture tile.
+        specular: strength of the Blinn-Phong highlight (0 = matte).
+        shininess: Blinn-Phong exponent (larger = tighter highlight).
+        metallic: 0 gives white highlights, 1 highlights tinted by the albedo.
+        mapping: "triplanar" in object space, or "sky": by direction, unlit (emissive).
+        name: short description for the scene record.
+    """
+
+    texture: Texture
+    tile: float
+    specular: float = 0.0
+    shininess: float = 20.0
+    metallic: float = 0.0
+    mapping: Mapping = "triplanar"
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Placed:
+    """A shape placed in the world: x_world = scale * rotation @ x_object + translation.
+
+    Attributes:
+        casts_shadow: False for enclosures (sky, room walls) that would block every shadow ray.
+    """
+
+    shape: Shape
+    rotation: np.ndarray  # [3, 3]
+    translation: np.ndarray  # [3]
+    scale: float
+    material: int
+    casts_shadow: bool = True
+
+    def world_vertices(self) -> np.ndarray:
+        """[P, 3] vertices in world coordinates."""
+        return self.scale * self.shape.mesh.vertices @ self.rotation.T + self.translation
+
+
+@dataclass(frozen=True)
+class Light:
+    """A directional light (``vector`` points toward the light) or a point light (``vector`` = position).
+
+    ``color`` is linear RGB irradiance on a surface facing the light (at distance 1 for point lights).
+    """
+
+    kind: LightKind
+    vector: np.ndarray  # [3]
+    color: np.ndarray  # [3]
+
+
+@dataclass(frozen=True)
+class Stage:
+    """Where cameras may go, for layouts.py.
+
+    Attributes:
+        center: [3] point the cameras look at (object and 360) or the centre of the camera plane (forward).
+        radius: bounding radius of the subject around ``center``.
+        ground: height of the ground plane, or None when there is none.
+        limit: cameras stay within this distance of ``center`` (inside the room or sky dome).
+        depth: forward layout: distance from the camera plane to the nearest subject geometry.
+    """
+
+    center: np.ndarray
+    radius: float
+    ground: float | None = None
+    limit: float = np.inf
+    depth: float = 0.0
+
+
+@dataclass(frozen=True)
+class World:
+    """Everything the renderer needs about one scene.
+
+    Attributes:
+        background: sRGB colour [3] for rays that hit nothing (enclosed worlds never show it).
+        ambient_sky, ambient_ground: linear RGB ambient light from above and from below.
+        description: what was drawn, for the scene record (JSON-ready).
+    """
+
+    objects: tuple[Placed, ...]
+    materials: tuple[Material, ...]
+    lights: tuple[Light, ...]
+    stage: Stage
+    background: np.ndarray
+    ambient_sky: np.ndarray
+    ambient_ground: np.ndarray
+    description: dict = field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------------------------------- random parts
+def random_shape(rng: np.random.Generator) -> Shape:
+    """A subject shape: primitive (25%), deformed primitive (25%), implicit (30%) or thin structure (20%)."""
+    group = rng.choice(4, p=[0.25, 0.25, 0.3, 0.2])
+    if group == 0:
+        return PRIMITIVES[str(rng.choice(list(PRIMITIVES)))](rng)
+    if group == 1:
+        return deformed(rng)
+    if group == 2:
+        return implicit_shape(rng)
+    return THIN[str(rng.choice(list(THIN)))](rng)
+
+
+def random_material(rng: np.random.Generator, tile_scale: float = 1.0) -> Material:
+    """A textured material with a random specular lobe; ``tile_scale`` scales the texture's world size."""
+    texture, name = random_texture(rng)
+    shiny = rng.random() < 0.5
+    return Material(texture=texture, tile=tile_scale * float(np.exp(rng.uniform(np.log(0.15), np.log(1.5)))),
+                    specular=float(rng.uniform(0.05, 0.6)) if shiny else float(rng.uniform(0.0, 0.05)),
+                    shininess=float(np.exp(rng.uniform(np.log(5), np.log(300)))),
+                    metallic=float(rng.random() < 0.2), name=name)
+
+
+def sky_material(rng: np.random.Generator) -> Material:
+    image = sky_image(rng)
+    return Material(texture=Texture.from_image(srgb_to_linear(image)), tile=float(rng.integers(1, 3)),
+                    mapping="sky", name="sky")
+
+
+def random_rotation(rng: np.random.Generator, upright: bool) -> np.ndarray:
+    """[3, 3]: a rotation about z only (objects standing on a floor) or uniformly random."""
+    if upright:
+        return Rotation.from_euler("z", rng.uniform(0, 2 * np.pi)).as_matrix()
+    quat = rng.normal(size=4)  # a normalised Gaussian 4-vector is a uniform rotation
+    return Rotation.from_quat(quat / np.linalg.norm(quat)).as_matrix()
+
+
+def sun_light(rng: np.random.Generator, strength: float) -> Light:
+    """A directional light from a random direction above the horizon, warm to cool white."""
+    azimuth, elevation = rng.uniform(0, 2 * np.pi), rng.uniform(np.radians(15), np.radians(75))
+    direction = np.array([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
+    return Light("directional", direction, strength * light_tint(rng))
+
+
+def light_tint(rng: np.random.Generator) -> np.ndarray:
+    """Linear RGB of unit luminance-ish: near white, between warm (tungsten) and cool (shade)."""
+    warmth = rng.uniform(-1, 1) * 0.25
+    return np.array([1.0 + warmth, 1.0, 1.0 - warmth])
+
+
+def ambient_pair(rng: np.random.Generator, strength: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ambient light from the sky side and from the ground side (linear RGB)."""
+    sky = strength * light_tint(rng) * np.array([0.9, 0.95, 1.1])
+    return sky, sky * rng.uniform(0.3, 0.7)
+
+
+def exposed(world: World, factor: float) -> World:
+    """The same world with every light and the ambient term scaled by ``factor`` (skies are unlit)."""
+    lights = tuple(Light(light.kind, light.vector, light.color * factor) for light in world.lights)
+    return replace(world, lights=lights, ambient_sky=world.ambient_sky * factor,
+                   ambient_ground=world.ambient_ground * factor)
