@@ -325,8 +325,7 @@ def _render_frames(renderer: _Renderer, path: CameraPath, out_dir: Path, scale: 
     todo = [i for i in range(len(path)) if not frame_paths(out_dir, i).all_exist()]
     resumed, seconds, clipped = len(path) - len(todo), 0.0, 0
     near, far = float(path.near.min()), float(path.far.max())
-    bar = tqdm(total=len(path), initial=resumed, unit="frame", desc="rendering", file=sys.stderr,
-               dynamic_ncols=True, disable=None)
+    bar = tqdm(total=len(path), initial=resumed, unit="frame", desc="rendering", file=sys.stderr, dynamic_ncols=True)
     with bar:
         for i in todo:
             start = time.perf_counter()
@@ -379,7 +378,7 @@ def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
         raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
     renderer = _Renderer(_load_model(_checkpoint_path(config.checkpoint), config.device), scene, config, size)
     scores = []
-    for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True, disable=None):
+    for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):
         start = time.perf_counter()
         camera = scene.cameras.subset([index]).rescale(*size)
         out, refs = renderer.render(camera, float(scene.near[index]), float(scene.far[index]), exclude=held)

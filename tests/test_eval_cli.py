@@ -6,10 +6,14 @@ import json
 import imageio.v3 as iio
 import numpy as np
 import pytest
+from model_fixtures import one_thread  # noqa: F401  (fixture)
 from test_render_cli import make_checkpoint, make_scene, ring_cameras, run
 
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.views import nearest_views
+
+
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

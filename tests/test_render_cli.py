@@ -6,10 +6,12 @@ import math
 from pathlib import Path
 
 import imageio.v3 as iio
+import imageio_ffmpeg
 import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from model_fixtures import one_thread  # noqa: F401  (fixture)
 
 from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.checkpoint import save_checkpoint
@@ -22,6 +24,7 @@ from insertnerf_cli.pipeline import STATE_FILE
 from insertnerf_cli.scenes import write_blender_transforms
 
 HEIGHT, WIDTH = 24, 32
+pytestmark = pytest.mark.usefixtures("one_thread")
 # Tiny network: CLI mechanics only, random weights are fine.
 TINY = dict(encoder_widths=(4, 4, 4, 4), feature_dims=(4, 4, 4), nerf_width=8, appearance_width=8, film_hidden=8,
             samples_coarse=8, samples_fine=8, aggregate_hidden=4)
@@ -44,11 +47,12 @@ def grid_cameras(n: int) -> Cameras:
     return Cameras(intrinsics(30.0, 30.0, WIDTH / 2, HEIGHT / 2).expand(n, 3, 3).clone(), c2w, HEIGHT, WIDTH)
 
 
-def make_scene(root: Path, splits: dict[str, int], layout: str = "object") -> Path:
+def make_scene(root: Path, splits: dict[str, int], layout: str = "object", scale: float = 1.0) -> Path:
     """A Blender-format scene with ``splits`` = {name: views}, cameras on a ring ("object") or a grid
-    ("forward"); images are smooth per-view colour ramps."""
+    ("forward"), every length multiplied by ``scale``; images are smooth per-view colour ramps."""
     n = sum(splits.values())
     cams = ring_cameras(n) if layout == "object" else grid_cameras(n)
+    cams = cams.transform(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64), scale)
     start = 0
     for split, count in splits.items():
         names = [f"{split}/r_{i}.png" for i in range(count)]
@@ -57,7 +61,8 @@ def make_scene(root: Path, splits: dict[str, int], layout: str = "object") -> Pa
             (root / split).mkdir(parents=True, exist_ok=True)
             iio.imwrite(root / name, (255 * np.broadcast_to(ramp, (HEIGHT, WIDTH, 3))).astype(np.uint8))
         write_blender_transforms(root / f"transforms_{split}.json", cams.subset(range(start, start + count)), names,
-                                 near=0.5, far=4.0, extra={"layout": layout})
+                                 near=0.5 * scale, far=4.0 * scale,
+                                 extra={"layout": layout})
         start += count
     return root
 
@@ -105,6 +110,7 @@ def test_render_writes_every_output_with_the_right_types(scene_and_checkpoint, t
         assert valid.size == 0 or (valid.min() >= 0.5 - 1e-3 and valid.max() <= 4.0 + 1e-3)
     for video in ("video.mp4", "depth.mp4"):
         assert "h264" in video_codec(out / video)
+        assert imageio_ffmpeg.count_frames_and_secs(str(out / video))[0] == 3
     cams = json.loads((out / "cameras.json").read_text())
     assert cams["depth_unit_scale_factor"] == DEPTH_UNIT_SCALE and cams["path"] == "orbit"
     assert len(cams["frames"]) == 3 and cams["frames"][2]["file_path"] == "frames/00002.png"
@@ -113,6 +119,22 @@ def test_render_writes_every_output_with_the_right_types(scene_and_checkpoint, t
     np.testing.assert_allclose(np.linalg.norm(centres[:, :2], axis=1), 2.0, atol=1e-6)
     np.testing.assert_allclose(centres[:, 2], 1.0, atol=1e-6)
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]
+
+
+def test_depth_is_in_the_scene_units(scene_and_checkpoint, tmp_path):
+    # The same scene with every length doubled normalises to the same scene: the frames match and the depth
+    # PNGs (millimetres of the scene's unit) double.
+    scene, ckpt = scene_and_checkpoint
+    double = make_scene(tmp_path / "double", {"train": 6}, scale=2.0)
+    assert _render(scene, ckpt, tmp_path / "a", "--frames", 1).exit_code == 0
+    assert _render(double, ckpt, tmp_path / "b", "--frames", 1).exit_code == 0
+    depth_a = iio.imread(tmp_path / "a" / "depth" / "00000.png").astype(np.int64)
+    depth_b = iio.imread(tmp_path / "b" / "depth" / "00000.png").astype(np.int64)
+    valid = (depth_a > 0) & (depth_b > 0)
+    assert valid.mean() > 0.5, "too few valid depth pixels to compare"
+    assert np.abs(depth_b[valid] - 2 * depth_a[valid]).max() <= 2  # rounding to whole millimetres
+    rgb_a, rgb_b = (iio.imread(tmp_path / d / "frames" / "00000.png").astype(int) for d in "ab")
+    assert np.abs(rgb_a - rgb_b).max() <= 1
 
 
 def test_interrupted_render_resumes_only_missing_frames(scene_and_checkpoint, tmp_path):
