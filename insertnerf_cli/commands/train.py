@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from ..training import TrainConfig, train as train_generator
+from ..training import TrainConfig, TrainResult, train as train_generator
 from ..training.config import read_model_config, saved_train_config, with_overrides
 from ..training.run_dir import RunFiles
 from .common import device_option, overwrite_option, resolve_device, user_errors
@@ -55,11 +55,17 @@ def train(dataset_dir: Path, run_dir: Path, device: str, resume: bool, overwrite
         base = with_overrides(base, {}, {"model": read_model_config(model_config)})
     config = with_overrides(base, model_fields, {name.replace("-", "_"): value for name, value in flags.items()})
     result = train_generator(dataset_dir, run_dir, config, torch_device, resume=resume, overwrite=overwrite)
+    if result.main_process:
+        click.echo(result_summary(result))
+    if result.stopped == "interrupted":
+        if result.main_process:
+            click.echo(f"Continue with: insertnerf train {dataset_dir} --out {run_dir} --resume", err=True)
+        raise SystemExit(130)
+
+
+def result_summary(result: TrainResult) -> str:
+    """One line: why it stopped, steps, time, throughput, validation PSNR and the checkpoint."""
     val = "n/a" if result.val_psnr is None else f"{result.val_psnr:.2f} dB"
     speed = "" if result.rays_per_s is None else f", {result.rays_per_s:,.0f} rays/s"
-    click.echo(f"{result.stopped}: step {result.step} ({result.steps_this_session} this session, "
-               f"{result.elapsed_s / 60:.1f} min in total{speed}); validation PSNR {val}; "
-               f"checkpoint {result.checkpoint}")
-    if result.stopped == "interrupted":
-        click.echo(f"Continue with: insertnerf train {dataset_dir} --out {run_dir} --resume", err=True)
-        raise SystemExit(130)
+    return (f"{result.stopped}: step {result.step} ({result.steps_this_session} this session, "
+            f"{result.elapsed_s / 60:.1f} min in total{speed}); validation PSNR {val}; checkpoint {result.checkpoint}")

@@ -98,7 +98,7 @@ def find_scenes(dataset_dir: Path, resolution: int, say: Say) -> list[TrainScene
     for folder in sorted(p for p in dataset_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
         try:
             scenes.append(prepare_scene(folder, resolution, folder.name))
-        except UserError as err:
+        except (UserError, ValueError) as err:  # ValueError: malformed camera data a reader passed on
             skipped.append(folder.name)
             say(f"skipping {folder.name}: {err}")
     if not scenes:
@@ -178,6 +178,8 @@ def validation_draws(scenes: list[TrainScene], num_views: int, rays: int, seed: 
     rng = np.random.default_rng([seed, 1])  # its own stream: validation never shifts the training draws
     draws = []
     for s, scene in enumerate(scenes):
+        if not scene.test_ids:
+            continue  # a scene whose format has an empty test split cannot validate
         target = scene.test_ids[int(rng.integers(len(scene.test_ids)))]
         candidates = [i for i in scene.train_ids if i != target]
         near = nearest_views(scene.cameras.c2w[target], scene.cameras.c2w[candidates], num_views, scene.method)

@@ -36,6 +36,7 @@ class TrainResult:
         train_psnr: PSNR (dB) of the fine pass over the last logged steps; val_psnr: last validation;
         best_val_psnr: best validation of the run (None when nothing was validated).
         rays_per_s: training throughput of this session (all ranks together).
+        main_process: False on the other ranks of a torchrun launch (they should stay quiet).
     """
 
     run_dir: Path
@@ -48,6 +49,7 @@ class TrainResult:
     val_psnr: float | None
     best_val_psnr: float | None
     rays_per_s: float | None
+    main_process: bool = True
 
 
 class _Meter:
@@ -143,9 +145,11 @@ def _run(s: Session) -> TrainResult:
         _checkpoint(s, elapsed)
     elif reason == "steps":
         s.say(f"the run is already at step {s.step} of --steps {cfg.steps}; pass a larger --steps to go on.")
+    elif reason == "minutes":
+        s.say(f"the run has used its --minutes {cfg.minutes} budget; pass a larger --minutes to go on.")
     return TrainResult(s.files.root, s.files.last, s.step, s.step - s.start_step, elapsed, reason,
                        last["train_psnr"], last["val_psnr"], s.best_val_psnr,
-                       session_rays / session_seconds if session_seconds > 0 else None)
+                       session_rays / session_seconds if session_seconds > 0 else None, s.ctx.is_main)
 
 
 def _stop_reason(s: Session, elapsed: float, interrupted: bool) -> str | None:
