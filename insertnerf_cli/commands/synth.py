@@ -1,8 +1,54 @@
-"""`insertnerf synth` (being built)."""
+"""`insertnerf synth`: render procedural multi-view scenes (the generator's training data)."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
 import click
+
+from .common import overwrite_option, user_errors
 
 
 @click.command("synth")
-def synth() -> None:
-    """Not built yet."""
-    raise click.ClickException("insertnerf synth is not built yet in this version.")
+@click.argument("out_dir", type=click.Path(file_okay=False, dir_okay=True, path_type=Path))
+@click.option("--scenes", type=click.IntRange(min=1), required=True, help="Number of scenes to render.")
+@click.option("--views", type=click.IntRange(min=2), default=50, show_default=True,
+              help="Views per scene, test views included.")
+@click.option("--test-views", type=click.IntRange(min=0),
+              help="Views per scene held out in transforms_test.json.  [default: views // 8, at least 1]")
+@click.option("--resolution", type=click.IntRange(min=8), default=200, show_default=True,
+              help="Long side of the images in pixels (the aspect ratio is drawn per scene).")
+@click.option("--square", is_flag=True, help="Square images only (like NeRF-Synthetic).")
+@click.option("--layout", type=click.Choice(["object", "forward", "360", "mixed"]), default="mixed",
+              show_default=True, help="Camera layout; mixed draws one of the three per scene.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Dataset seed: the same seed and options give byte-identical images.")
+@click.option("--workers", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,
+              help="Parallel worker processes.")
+@click.option("--noise/--no-noise", default=False, show_default=True, help="Sensor noise (shot + read).")
+@click.option("--jitter/--no-jitter", default=False, show_default=True,
+              help="Exposure and white-balance jitter between views.")
+@click.option("--jpeg/--no-jpeg", default=False, show_default=True, help="JPEG compression artefacts.")
+@overwrite_option
+@user_errors
+def synth(out_dir: Path, workers: int, overwrite: bool, square: bool, noise: bool, jitter: bool, jpeg: bool,
+          **options: object) -> None:
+    """Render SCENES procedural scenes with exact cameras and depth into OUT_DIR (Blender format).
+
+    Re-running the same command resumes an interrupted run; finished scenes are kept.
+
+    \b
+    Example:
+      insertnerf synth data/synth --scenes 1000 --views 50 --resolution 200 --layout mixed
+    """
+    from ..synth import CaptureOptions, SynthOptions, build_dataset
+
+    if options["test_views"] is None:
+        options["test_views"] = max(1, int(options["views"]) // 8)  # type: ignore[call-overload]
+    config = SynthOptions(**options, aspects=(1.0,) if square else SynthOptions().aspects,  # type: ignore[arg-type]
+                          capture=CaptureOptions(noise=noise, jitter=jitter, jpeg=jpeg))
+    run = build_dataset(out_dir, config, workers=workers, overwrite=overwrite)
+    speed = f" at {run.views_per_second:.1f} views/s" if run.rendered else ""
+    kept = f" ({run.skipped} already there)" if run.skipped else ""
+    click.echo(f"Rendered {run.rendered} scenes{speed}{kept} into {out_dir} (listed in manifest.json). "
+               f"Train on them with: insertnerf train {out_dir} --out runs/synth")

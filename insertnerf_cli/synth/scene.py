@@ -19,10 +19,10 @@ from ..cameras import Cameras
 from ..scenes.writers import write_blender_transforms
 from .capture import CaptureOptions, develop, draw_settings
 from .compose import COMPOSERS
-from .layouts import RIGS, held_out_indices, random_frame
+from .layouts import RIGS, Frame, held_out_indices, random_frame
 from .raycast import build_scene_mesh
 from .render import auto_exposure, render_view
-from .world import exposed
+from .world import World, exposed
 
 LAYOUTS = ("object", "forward", "360")
 # Depth files store millimetres of scene units in uint16 (nerfstudio's convention).
@@ -90,19 +90,34 @@ class RenderedScene:
     far: float
 
 
+def scene_world(spec: SceneSpec) -> World:
+    """The world of a scene (before exposure)."""
+    return COMPOSERS[spec.layout](stream(spec.seed, spec.index, _WORLD))
+
+
+def scene_cameras(spec: SceneSpec, world: World) -> tuple[Cameras, Frame]:
+    """All ``spec.views`` cameras of a scene, in view order (held-out views included), and their frame."""
+    rig_rng = stream(spec.seed, spec.index, _RIG)
+    frame = random_frame(rig_rng, spec.resolution, spec.aspects)
+    return RIGS[spec.layout](rig_rng, world.stage, frame, spec.views), frame
+
+
+def scene_splits(spec: SceneSpec) -> dict[str, list[int]]:
+    """View indices of the train and test splits (each split's files are numbered in this order)."""
+    test = set(held_out_indices(spec.views, spec.test_views))
+    return {"train": [i for i in range(spec.views) if i not in test], "test": sorted(test)}
+
+
 def render_scene(spec: SceneSpec, folder: Path) -> RenderedScene:
     """Render ``spec`` into ``folder`` (created; the caller renames it into place when this returns)."""
     start = time.perf_counter()
-    world = COMPOSERS[spec.layout](stream(spec.seed, spec.index, _WORLD))
+    world = scene_world(spec)
     mesh = build_scene_mesh(world)
-    rig_rng = stream(spec.seed, spec.index, _RIG)
-    frame = random_frame(rig_rng, spec.resolution, spec.aspects)
-    cameras = RIGS[spec.layout](rig_rng, world.stage, frame, spec.views)
+    cameras, frame = scene_cameras(spec, world)
     exposure = auto_exposure(mesh, world, cameras)
     world = exposed(world, exposure)
     settings = draw_settings(stream(spec.seed, spec.index, _CAPTURE), spec.capture)
-    test = set(held_out_indices(spec.views, spec.test_views))
-    splits = {"train": [i for i in range(spec.views) if i not in test], "test": sorted(test)}
+    splits = scene_splits(spec)
     depth_range = [np.inf, 0.0]
     for split, indices in splits.items():
         for k, i in enumerate(indices):

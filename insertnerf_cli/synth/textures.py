@@ -18,8 +18,8 @@ from scipy.spatial import cKDTree
 
 # Texture resolution (pixels per tile side) of the finest mip level.
 SIZE = 256
-# Coarsest mip level kept, in pixels per side.
-_MIN_LEVEL = 4
+# Coarsest mip level, in pixels per side: 1 is the mean colour that a pixel covering many tiles sees.
+_MIN_LEVEL = 1
 
 
 @dataclass(frozen=True)
