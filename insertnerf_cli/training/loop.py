@@ -139,6 +139,8 @@ def _run(s: Session) -> TrainResult:
             if s.step % cfg.ckpt_every == 0:
                 _checkpoint(s, elapsed + seconds)
             bar.update(1)
+        if meter.count:  # steps since the last log line (a time budget or Ctrl-C ended the run between logs)
+            last.update(_log(s, meter, elapsed, bar))
     if s.step > s.start_step:
         if last["val_step"] != s.step and reason != "interrupted":
             last["val_psnr"] = _validate_and_keep_best(s, elapsed)
