@@ -19,6 +19,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -57,14 +58,18 @@ def scene_mesh() -> trimesh.Trimesh:
     return trimesh.util.concatenate([room, block, ball])
 
 
-def orbit_cameras(views: int, size: int, radius: float, fov_deg: float) -> Cameras:
-    """``views`` cameras on a horizontal circle (world z up), each looking at the origin, OpenCV c2w."""
-    f = 0.5 * size / math.tan(math.radians(fov_deg) / 2)
+def orbit_cameras(views: int, size: tuple[int, int], radius: float, fov_deg: float,
+                  height: Callable[[float], float]) -> Cameras:
+    """``views`` cameras on a circle (world z up) at ``height(angle)``, looking at the origin, OpenCV c2w.
+
+    ``size`` is (height, width) in pixels; ``fov_deg`` the horizontal field of view.
+    """
+    rows, cols = size
+    f = 0.5 * cols / math.tan(math.radians(fov_deg) / 2)
     c2w = torch.zeros(views, 4, 4, dtype=torch.float64)
     for i in range(views):
         a = 2 * math.pi * i / views
-        centre = torch.tensor([radius * math.cos(a), radius * math.sin(a), 0.6 + 0.3 * math.sin(3 * a)],
-                              dtype=torch.float64)
+        centre = torch.tensor([radius * math.cos(a), radius * math.sin(a), height(a)], dtype=torch.float64)
         forward = -centre / centre.norm()
         right = torch.linalg.cross(forward, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
         right = right / right.norm()
@@ -72,8 +77,8 @@ def orbit_cameras(views: int, size: int, radius: float, fov_deg: float) -> Camer
         c2w[i, :3, :3] = torch.stack([right, down, forward], dim=1)
         c2w[i, :3, 3] = centre
         c2w[i, 3, 3] = 1.0
-    K = intrinsics(f, f, size / 2, size / 2).expand(views, 3, 3).clone()
-    return Cameras(K, c2w, size, size)
+    K = intrinsics(f, f, cols / 2, rows / 2).expand(views, 3, 3).clone()
+    return Cameras(K, c2w, rows, cols)
 
 
 def _hash_noise(cells: np.ndarray, seed: int) -> np.ndarray:
@@ -106,8 +111,12 @@ def solid_texture(points: np.ndarray, seed: int) -> np.ndarray:
     return 0.5 + 0.5 * np.tanh(TEXTURE_CONTRAST * (rgb - 0.5))
 
 
-def render(mesh: trimesh.Trimesh, cameras: Cameras, seed: int = 0) -> list[np.ndarray]:
-    """Ray-cast every camera: solid-texture colour times a Lambert term from a fixed light direction."""
+Colouring = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (hits [P, 3], triangle ids [P]) -> RGB [P, 3]
+
+
+def render(mesh: trimesh.Trimesh, cameras: Cameras, colouring: Colouring,
+           background: float = 0.8) -> list[np.ndarray]:
+    """Ray-cast every camera: ``colouring`` of the hit times a Lambert term from a fixed light direction."""
     intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(mesh)
     light = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
     uv = cameras.pixel_grid().reshape(1, -1, 2)  # [1, H*W, 2]
@@ -118,18 +127,19 @@ def render(mesh: trimesh.Trimesh, cameras: Cameras, seed: int = 0) -> list[np.nd
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
         origins = np.broadcast_to(cam.centers[0].numpy(), dirs.shape)
         tri, ray, hits = intersector.intersects_id(origins, dirs, multiple_hits=False, return_locations=True)
-        colour = np.zeros((dirs.shape[0], 3))
-        # The same seed for every view: the texture is a property of the world, not of the image.
+        colour = np.full((dirs.shape[0], 3), background)
         shade = 0.55 + 0.45 * np.abs(mesh.face_normals[tri] @ light)
-        colour[ray] = solid_texture(hits, seed) * shade[:, None]
+        colour[ray] = colouring(hits, tri) * shade[:, None]
         images.append((colour.reshape(cameras.height, cameras.width, 3) * 255).round().astype(np.uint8))
     return images
 
 
 def render_scene(views: int, size: int, seed: int = 0) -> RenderedScene:
     radius = 3.0
-    cameras = orbit_cameras(views, size, radius, fov_deg=60.0)
-    return RenderedScene(render(scene_mesh(), cameras, seed), cameras, radius)
+    cameras = orbit_cameras(views, (size, size), radius, fov_deg=60.0, height=lambda a: 0.6 + 0.3 * math.sin(3 * a))
+    # The same seed for every view: the texture is a property of the world, not of the image.
+    images = render(scene_mesh(), cameras, lambda hits, _: solid_texture(hits, seed))
+    return RenderedScene(images, cameras, radius)
 
 
 def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:

@@ -225,16 +225,7 @@ def _run_features_and_matching(inputs: InputImages, db_path: Path, options: Pose
                                stages: _Stages) -> str:
     """SIFT features and matches into ``db_path``; returns the matcher used."""
     threads = _num_threads(options.num_threads)
-    stages.start("extracting SIFT features", f"{len(inputs.names)} images, long side capped at "
-                 f"{options.max_image_size} px, {threads} threads")
-    db_path.parent.mkdir(parents=True, exist_ok=True)
-    extraction = pycolmap.FeatureExtractionOptions(max_image_size=options.max_image_size, num_threads=threads)
-    pycolmap.extract_features(db_path, inputs.folder, image_names=list(inputs.names),
-                              camera_mode=pycolmap.CameraMode.SINGLE,
-                              reader_options=pycolmap.ImageReaderOptions(camera_model=options.camera_model),
-                              extraction_options=extraction, device=pycolmap.Device.cpu)
-    with pycolmap.Database.open(db_path) as db:
-        stages.done(f"{db.num_keypoints()} keypoints in {db.num_images()} images")
+    _extract(inputs, db_path, options, threads, stages)
     matcher = options.matcher
     if matcher == "auto":
         matcher = "exhaustive" if len(inputs.names) <= options.exhaustive_limit else "sequential"
@@ -253,6 +244,25 @@ def _run_features_and_matching(inputs: InputImages, db_path: Path, options: Pose
         useful = sum(len(g.inlier_matches) >= min_inliers for g in geometries)
         stages.done(f"{useful} of {db.num_matched_image_pairs()} image pairs share >= {min_inliers} verified matches")
     return matcher
+
+
+def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads: int, stages: _Stages) -> None:
+    """SIFT on every image; refuse images COLMAP's own decoder could not read (it skips them silently)."""
+    stages.start("extracting SIFT features", f"{len(inputs.names)} images, long side capped at "
+                 f"{options.max_image_size} px, {threads} threads")
+    db_path.parent.mkdir(parents=True, exist_ok=True)
+    extraction = pycolmap.FeatureExtractionOptions(max_image_size=options.max_image_size, num_threads=threads)
+    pycolmap.extract_features(db_path, inputs.folder, image_names=list(inputs.names),
+                              camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=pycolmap.ImageReaderOptions(camera_model=options.camera_model),
+                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    with pycolmap.Database.open(db_path) as db:
+        read = {image.name for image in db.read_all_images()}
+        stages.done(f"{db.num_keypoints()} keypoints in {db.num_images()} images")
+    missing = [name for name in inputs.names if name not in read]
+    if missing:
+        raise UserError(f"COLMAP could not decode {len(missing)} image(s): {', '.join(missing[:10])}"
+                        f"{' ...' if len(missing) > 10 else ''}; convert them to JPEG or PNG.")
 
 
 def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
@@ -280,8 +290,9 @@ def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
         raise UserError(f"only {rec.num_reg_images()} of {n} images could be registered (need at least "
                         f"{MIN_REGISTERED}); use more overlapping, sharp, textured photos of one scene.")
     others = sorted((m.num_reg_images() for k, m in models.items() if k != best), reverse=True)
+    dropped = f"; other models dropped (registered images): {others}" if others else ""
     stages.done(f"{rec.num_reg_images()}/{n} registered, {rec.num_points3D()} points, "
-                f"{rec.compute_mean_reprojection_error():.2f} px" + (f"; other models dropped: {others}" if others else ""))
+                f"{rec.compute_mean_reprojection_error():.2f} px{dropped}")
     return rec, work / "mapping" / str(best)
 
 
