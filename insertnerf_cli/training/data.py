@@ -5,6 +5,7 @@ Each step draws one scene, one target view of it, its source views from the pool
 """
 from __future__ import annotations
 
+import sys
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +14,7 @@ from typing import Callable
 import numpy as np
 import torch
 from torch import Tensor
+from tqdm import tqdm
 
 from ..cameras import Cameras
 from ..errors import UserError
@@ -82,7 +84,7 @@ def prepare_scene(path: Path, resolution: int, name: str) -> TrainScene:
                       train, test, method)
 
 
-def find_scenes(dataset_dir: Path, resolution: int, say: Say) -> list[TrainScene]:
+def find_scenes(dataset_dir: Path, resolution: int, say: Say, show_progress: bool = True) -> list[TrainScene]:
     """Every scene folder directly inside ``dataset_dir`` (or the folder itself when it is one scene).
 
     Folders that are not scenes are skipped with a warning; no readable scene at all is a UserError.
@@ -94,8 +96,13 @@ def find_scenes(dataset_dir: Path, resolution: int, say: Say) -> list[TrainScene
         return [prepare_scene(dataset_dir, resolution, dataset_dir.name)]
     except UserError:
         pass  # not a scene itself: a folder of scenes
+    try:
+        folders = sorted(p for p in dataset_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
+    except OSError as err:
+        raise UserError(f"dataset folder {dataset_dir} cannot be listed ({err.strerror}).") from None
     scenes, skipped = [], []
-    for folder in sorted(p for p in dataset_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
+    for folder in tqdm(folders, desc="reading scenes", unit="scene", file=sys.stderr, leave=False,
+                       disable=not show_progress):
         try:
             scenes.append(prepare_scene(folder, resolution, folder.name))
         except (UserError, ValueError) as err:  # ValueError: malformed camera data a reader passed on

@@ -73,7 +73,7 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
     checkpoint = read_checkpoint(files.last) if resume else None
     if checkpoint is not None:
         check_compatible(checkpoint, config, say)
-    scenes = find_scenes(dataset_dir, config.resolution, say)
+    scenes = find_scenes(dataset_dir, config.resolution, say, show_progress=ctx.is_main)
     train, val = _split(files, scenes, config, resume, say)
     check_view_counts(train, val, config.model.num_views)
     # Validate on held-out scenes; a dataset too small to hold any out validates on unseen views instead.
