@@ -117,18 +117,21 @@ def _path_intrinsics(cameras: Cameras, height: int, width: int, frames: int) -> 
 def orbit_path(cameras: Cameras, near: Tensor, far: Tensor, frames: int, size: tuple[int, int]) -> CameraPath:
     """A turntable: ``frames`` cameras evenly spaced on a horizontal circle around the focus point.
 
-    The circle keeps the inputs' mean height above the focus and mean horizontal distance, starts at the first
-    input camera's azimuth, and stops one step short of 360 degrees so the loop closes. near/far are the inputs'
-    overall bounds.
+    The cameras keep the inputs' mean distance to the focus and their mean elevation angle (so a capture from
+    all over a sphere gives a circle as far out as its cameras, not one shrunk towards the middle), start at the
+    first input camera's azimuth, and stop one step short of 360 degrees so the loop closes. near/far are the
+    inputs' overall bounds.
     """
     _check_frames(frames)
     focus, up = focus_point(cameras), mean_up(cameras)
     offsets = cameras.centers - focus  # [N, 3]
-    height = (offsets @ up).mean()
-    radius = (offsets - (offsets @ up)[:, None] * up).norm(dim=-1).mean()
+    distance = offsets.norm(dim=-1)  # [N]
+    radius = distance.mean()
+    elevation = torch.asin(((offsets @ up) / distance.clamp(min=1e-12)).clamp(-1.0, 1.0)).mean()
     e1, e2 = _basis(up, offsets[0])
     angles = torch.arange(frames, dtype=offsets.dtype, device=offsets.device) * (2 * math.pi / frames)  # [F]
-    eyes = focus + radius * (torch.cos(angles)[:, None] * e1 + torch.sin(angles)[:, None] * e2) + height * up
+    ring = torch.cos(angles)[:, None] * e1 + torch.sin(angles)[:, None] * e2  # [F, 3] unit, horizontal
+    eyes = focus + radius * (torch.cos(elevation) * ring + torch.sin(elevation) * up)
     c2w = look_at(eyes, focus, up)
     h, w = size
     path_cams = Cameras(_path_intrinsics(cameras, h, w, frames), c2w, h, w)

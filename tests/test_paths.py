@@ -71,6 +71,16 @@ def test_orbit_has_n_frames_around_the_focus_and_closes():
     assert float(path.near.min()) == 1.0 and float(path.far.max()) == 8.0
 
 
+def test_orbit_of_a_capture_from_above_and_below_keeps_the_distance():
+    # Two rings at +-45 degrees elevation: the orbit runs at the mean elevation (0) but as far out as the inputs.
+    above, below = _ring(8, radius=3.0, height=3.0, focus=(0, 0, 0)), _ring(8, radius=3.0, height=-3.0, focus=(0, 0, 0))
+    cams = Cameras.cat([above, below])
+    path = orbit_path(cams, *_bounds(16), frames=6, size=(60, 80))
+    dist = path.cameras.centers.norm(dim=-1)
+    torch.testing.assert_close(dist, torch.full((6,), math.sqrt(18.0), dtype=torch.float64))
+    torch.testing.assert_close(path.cameras.centers[:, 2], torch.zeros(6, dtype=torch.float64), atol=1e-9, rtol=0)
+
+
 def test_orbit_starts_at_the_first_camera_azimuth():
     cams = _ring()
     path = orbit_path(cams, *_bounds(len(cams)), frames=8, size=(60, 80))
