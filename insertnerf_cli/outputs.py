@@ -8,7 +8,9 @@
 """
 from __future__ import annotations
 
+import json
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -16,13 +18,15 @@ from typing import Sequence
 import numpy as np
 from torch import Tensor
 
-from .atomic import atomic_path
+from .atomic import atomic_path, write_json
 from .cameras import Cameras
 from .errors import UserError
 
 FRAME_DIRS = ("frames", "depth", "depth_vis")
 VIDEOS = ("video.mp4", "depth.mp4")
 CAMERAS_JSON = "cameras.json"
+STATE_FILE = "render_config.json"  # the settings the frames depend on: equal settings may resume
+POSES_DIR = "poses"  # poses pycolmap estimated for a folder of photos
 # Depth PNGs store millimetres of the user's unit, as nerfstudio's depth files do.
 DEPTH_UNIT_SCALE = 1e-3
 _UINT16_MAX = np.iinfo(np.uint16).max
@@ -164,6 +168,61 @@ def write_cameras_json(path: Path, cameras: Cameras, near: Tensor, far: Tensor, 
     write_nerfstudio_transforms(path, cameras, [f"frames/{n}" for n in names], near=near, far=far,
                                 extra={"depth_unit_scale_factor": DEPTH_UNIT_SCALE, **(extra or {})},
                                 frame_extras=[{"depth_file_path": f"depth/{n}"} for n in names])
+
+
+def same_cameras_as_written(path: Path, cameras: Cameras) -> bool:
+    """Whether cameras.json at ``path`` holds exactly ``cameras`` (poses to 1e-6 of the scene size, sizes).
+
+    Resuming must not mix frames of two paths, e.g. after the scene's poses or this program changed.
+    """
+    try:
+        frames = json.loads(path.read_text())["frames"]
+        written = np.array([f["transform_matrix"] for f in frames], dtype=np.float64)  # [F, 4, 4]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    ours = cameras.c2w_opengl.double().cpu().numpy()
+    if written.shape != ours.shape:
+        return False
+    size = max(float(np.abs(ours[:, :3, 3]).max()), 1.0)
+    return bool(np.allclose(written, ours, rtol=0.0, atol=1e-6 * size))
+
+
+# ------------------------------------------------------------------------------------------ output folder
+def prepare_out_dir(out_dir: Path, state: dict, overwrite: bool) -> None:
+    """Create OUT, resume a run with the same state, or refuse to mix with a different run (unless overwrite)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"--out {out_dir} is a file; choose a folder")
+    state_file = out_dir / STATE_FILE
+    old = read_state(state_file)
+    if old == state and not overwrite:
+        return
+    ours = [*FRAME_DIRS, *VIDEOS, CAMERAS_JSON, STATE_FILE]
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+        what = "a render with other settings" if old is not None else "other files"
+        raise UserError(f"{out_dir} already holds {what}; pass --overwrite to replace its render outputs, "
+                        "or choose another --out")
+    for name in ours:
+        target = out_dir / name
+        shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
+    if old is None or old.get("images") != state.get("images"):
+        shutil.rmtree(out_dir / POSES_DIR, ignore_errors=True)  # poses of other photos
+    write_json(state_file, state)
+
+
+def read_state(state_file: Path) -> dict | None:
+    """The settings an earlier run recorded, or None (no file, or one cut short or edited into non-JSON)."""
+    try:
+        return json.loads(state_file.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def check_resumable(out_dir: Path, cameras: Cameras) -> None:
+    """Finished frames may be kept only if they were rendered along the same cameras (user units)."""
+    done = any(frame_paths(out_dir, i).frame.exists() for i in range(len(cameras)))
+    if done and not same_cameras_as_written(out_dir / CAMERAS_JSON, cameras):
+        raise UserError(f"{out_dir} holds frames of a different camera path (the scene's poses or insertnerf "
+                        "changed since); pass --overwrite to render them again, or choose another --out")
 
 
 # Absolute colour error that maps to the top of the colour map in eval's side-by-sides: errors past a quarter of

@@ -9,9 +9,7 @@ eval: held-out views (the test split, else every 8th) rendered from the nearest 
 from __future__ import annotations
 
 import hashlib
-import json
 import math
-import shutil
 import sys
 import time
 from collections import OrderedDict
@@ -26,8 +24,9 @@ from .atomic import write_json
 from .cameras import Cameras
 from .errors import UserError
 from .metrics import SSIM_WINDOW, psnr, ssim
-from .outputs import (CAMERAS_JSON, FRAME_DIRS, VIDEOS, depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths,
-                      side_by_side, write_cameras_json, write_frame, write_png, write_video)
+from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, depth_to_turbo, depth_to_uint16, ffmpeg_exe,
+                      frame_paths, prepare_out_dir, side_by_side, write_cameras_json, write_frame, write_png,
+                      write_video)
 from .paths import CameraPath, default_path_kind, make_path
 
 DEFAULT_FRAMES = 30
@@ -35,8 +34,6 @@ DEFAULT_FPS = 15.0
 DEFAULT_RESOLUTION = 256
 DEFAULT_VIEWS = 10
 DEFAULT_CHUNK = 4096
-STATE_FILE = "render_config.json"
-POSES_DIR = "poses"
 STATE_VERSION = 1
 # Below half opacity a pixel shows mostly background, so its depth says little: it is written as invalid (0).
 MIN_DEPTH_OPACITY = 0.5
@@ -242,35 +239,6 @@ class _Renderer:
 
 
 # ---------------------------------------------------------------------------------------------------- render
-def _prepare_out_dir(out_dir: Path, state: dict, overwrite: bool) -> None:
-    """Create OUT, resume a run with the same state, or refuse to mix with a different run (unless overwrite)."""
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UserError(f"--out {out_dir} is a file; choose a folder")
-    state_file = out_dir / STATE_FILE
-    old = _read_state(state_file)
-    if old == state and not overwrite:
-        return
-    ours = [*FRAME_DIRS, *VIDEOS, CAMERAS_JSON, STATE_FILE]
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
-        what = "a render with other settings" if old is not None else "other files"
-        raise UserError(f"{out_dir} already holds {what}; pass --overwrite to replace its render outputs, "
-                        "or choose another --out")
-    for name in ours:
-        target = out_dir / name
-        shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
-    if old is None or old.get("images") != state.get("images"):
-        shutil.rmtree(out_dir / POSES_DIR, ignore_errors=True)  # poses of other photos
-    write_json(state_file, state)
-
-
-def _read_state(state_file: Path) -> dict | None:
-    """The settings an earlier run recorded, or None (no file, or one cut short or edited into non-JSON)."""
-    try:
-        return json.loads(state_file.read_text())
-    except (OSError, ValueError):
-        return None
-
-
 def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, images: list | None) -> dict:
     """Everything that changes the frames: a re-run with an equal state may resume."""
     return {"version": STATE_VERSION, "scene": str(scene_dir.resolve()), "images": images, "path": config.path,
@@ -306,9 +274,10 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     # A bad scene, path or checkpoint fails here, before OUT is touched.
     planned = _plan(load_scene(scene_dir), config) if images is None else None
     model = _load_model(checkpoint, config.device)
-    _prepare_out_dir(out_dir, _render_state(scene_dir, checkpoint, config, images), config.overwrite)
+    prepare_out_dir(out_dir, _render_state(scene_dir, checkpoint, config, images), config.overwrite)
     scene, similarity, path = planned or _plan(_posed_photos(scene_dir, out_dir / POSES_DIR), config)
     user_cams = similarity.inverse().apply_cameras(path.cameras)
+    check_resumable(out_dir, user_cams)
     write_cameras_json(out_dir / CAMERAS_JSON, user_cams, path.near / similarity.scale, path.far / similarity.scale,
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               "normalization": similarity.to_json()})

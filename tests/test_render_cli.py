@@ -18,9 +18,8 @@ from insertnerf_cli.checkpoint import save_checkpoint
 from insertnerf_cli.cli import cli
 from insertnerf_cli.config import ModelConfig
 from insertnerf_cli.model import InsertNeRF
-from insertnerf_cli.outputs import DEPTH_UNIT_SCALE, video_codec
+from insertnerf_cli.outputs import DEPTH_UNIT_SCALE, STATE_FILE, video_codec
 from insertnerf_cli.paths import look_at
-from insertnerf_cli.pipeline import STATE_FILE
 from insertnerf_cli.scenes import write_blender_transforms
 
 HEIGHT, WIDTH = 24, 32
@@ -167,6 +166,20 @@ def test_other_settings_need_overwrite(scene_and_checkpoint, tmp_path):
     # --overwrite with the same settings renders everything again instead of resuming.
     again = _render(scene, ckpt, out, "--frames", 3, "--overwrite")
     assert "rendered 3" in again.output and "kept" not in again.output
+
+
+def test_frames_of_a_changed_path_are_not_mixed(tmp_path):
+    # Same command, but the scene's poses changed in between: the kept frames would belong to another path.
+    scene, ckpt = make_scene(tmp_path / "scene", {"train": 6}), make_checkpoint(tmp_path / "tiny.pt")
+    out = tmp_path / "views"
+    assert _render(scene, ckpt, out, "--frames", 2).exit_code == 0
+    (out / "frames" / "00001.png").unlink()
+    meta = json.loads((scene / "transforms_train.json").read_text())
+    meta["frames"][0]["transform_matrix"][2][3] += 0.3  # raise the first camera
+    (scene / "transforms_train.json").write_text(json.dumps(meta))
+    result = _render(scene, ckpt, out, "--frames", 2)
+    assert result.exit_code == 1 and "different camera path" in result.output
+    assert _render(scene, ckpt, out, "--frames", 2, "--overwrite").exit_code == 0
 
 
 def test_refuses_a_foreign_non_empty_folder(scene_and_checkpoint, tmp_path):
