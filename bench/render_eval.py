@@ -1,0 +1,123 @@
+"""Figures of `insertnerf render` and `insertnerf eval` on this machine (issue 5's "must show").
+
+    python3 bench/render_eval.py quality                 # mean PSNR/SSIM on 10 fresh object scenes, 200x200, 10 views
+    python3 bench/render_eval.py speed                   # seconds per 200x200 frame with 10 views, peak RSS
+    python3 bench/render_eval.py photos                  # wall time: 30 unposed 400x400 photos -> 30 frames
+    python3 bench/render_eval.py quality --checkpoint runs/x/checkpoints/best.pt --scenes 3 --keep /tmp/q
+
+Every figure comes from the real commands run in a child process (`insertnerf synth`, `render`, `eval`), so
+the peak memory printed is that command's own maximum resident set size. The quality scenes use a seed
+(--seed, default 900001) far from the training data's, so they were never seen in training.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import imageio.v3 as iio
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+KIB = 1024
+
+
+def run(args: list[str]) -> tuple[float, float, str]:
+    """Run ``insertnerf ARGS`` in a child; (wall seconds, the child's peak RSS in MiB, its stdout)."""
+    start = time.perf_counter()
+    # The child reports its own peak resident set size on exit (pycolmap runs in-process, so it counts too).
+    entry = ("import atexit, resource, sys; atexit.register(lambda: sys.stderr.write("
+             "f'\\nPEAK_RSS_KIB {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n')); "
+             "from insertnerf_cli.cli import main; main()")
+    proc = subprocess.run([sys.executable, "-c", entry, *args], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        sys.exit(f"insertnerf {' '.join(args)} failed:\n{proc.stderr[-2000:]}")
+    peak = int(re.findall(r"PEAK_RSS_KIB (\d+)", proc.stderr)[-1]) / KIB
+    return wall, peak, proc.stdout
+
+
+def model_args(args: argparse.Namespace) -> list[str]:
+    extra = ["--device", "cpu", "--views", str(args.views)]
+    return extra + (["--checkpoint", str(args.checkpoint)] if args.checkpoint else [])
+
+
+def quality(args: argparse.Namespace, work: Path) -> None:
+    data = work / "fresh"
+    run(["synth", str(data), "--scenes", str(args.scenes), "--views", str(args.views + args.test_views),
+         "--test-views", str(args.test_views), "--resolution", str(args.resolution), "--square", "--layout",
+         "object", "--seed", str(args.seed), "--workers", "2"])
+    psnrs, ssims = [], []
+    for scene in sorted(p for p in data.iterdir() if p.is_dir()):
+        report = work / f"{scene.name}.json"
+        wall, _, _ = run(["eval", str(scene), "--json", str(report), "--resolution", str(args.resolution),
+                          *model_args(args)])
+        data_json = json.loads(report.read_text())
+        psnrs.append(data_json["psnr"])
+        ssims.append(data_json["ssim"])
+        print(f"{scene.name}: PSNR {data_json['psnr']:.2f} dB, SSIM {data_json['ssim']:.4f} "
+              f"({len(data_json['views'])} held-out views, {wall:.0f} s)", flush=True)
+    print(f"mean over {len(psnrs)} fresh object scenes ({args.resolution}x{args.resolution}, {args.views} "
+          f"reference views): PSNR {sum(psnrs) / len(psnrs):.2f} dB, SSIM {sum(ssims) / len(ssims):.4f}")
+
+
+def speed(args: argparse.Namespace, work: Path) -> None:
+    data = work / "speed"
+    run(["synth", str(data), "--scenes", "1", "--views", str(args.views + 2), "--resolution", str(args.resolution),
+         "--square", "--layout", "object", "--seed", str(args.seed), "--workers", "1"])
+    out = work / "speed_out"
+    wall, peak, stdout = run(["render", str(data / "scene_00000"), "--out", str(out), "--frames", str(args.frames),
+                              "--resolution", str(args.resolution), *model_args(args)])
+    per_frame = float(re.search(r"([\d.]+) s/frame", stdout).group(1))
+    print(f"render: {per_frame:.2f} s per {args.resolution}x{args.resolution} frame with {args.views} reference "
+          f"views (mean of {args.frames} frames; {wall:.1f} s wall for the command), peak RSS {peak:.0f} MiB")
+
+
+def photos(args: argparse.Namespace, work: Path) -> None:
+    from poses_accuracy import render_scene as render_photos
+
+    folder = work / "photos"
+    folder.mkdir()
+    for i, image in enumerate(render_photos(args.images, args.size).images):
+        iio.imwrite(folder / f"photo_{i:03d}.png", image)
+    out = work / "photos_out"
+    wall, peak, stdout = run(["render", str(folder), "--out", str(out), "--frames", str(args.frames),
+                              *model_args(args)])
+    again, _, _ = run(["render", str(folder), "--out", str(out), "--frames", str(args.frames), *model_args(args)])
+    print(stdout.strip())
+    print(f"end to end: {args.images} unposed {args.size}x{args.size} photos -> {args.frames} frames in {wall:.0f} s "
+          f"wall (poses included), peak RSS {peak:.0f} MiB; an identical re-run took {again:.1f} s (cached poses "
+          "and frames)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("figure", choices=["quality", "speed", "photos"])
+    parser.add_argument("--checkpoint", type=Path, help="default: the bundled weights")
+    parser.add_argument("--views", type=int, default=10, help="reference views")
+    parser.add_argument("--resolution", type=int, default=200)
+    parser.add_argument("--scenes", type=int, default=10)
+    parser.add_argument("--test-views", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=900001)
+    parser.add_argument("--frames", type=int, default=None, help="default: 3 (speed), 30 (photos)")
+    parser.add_argument("--images", type=int, default=30)
+    parser.add_argument("--size", type=int, default=400)
+    parser.add_argument("--keep", type=Path, help="work in this folder and keep it")
+    args = parser.parse_args()
+    args.frames = args.frames or (3 if args.figure == "speed" else 30)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = args.keep or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        {"quality": quality, "speed": speed, "photos": photos}[args.figure](args, work)
+
+
+if __name__ == "__main__":
+    main()
