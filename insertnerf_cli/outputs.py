@@ -58,16 +58,22 @@ def frame_paths(out_dir: Path, index: int) -> FramePaths:
 
 
 def ffmpeg_exe() -> str:
-    """Path of the ffmpeg binary imageio-ffmpeg uses; a UserError before any rendering if there is none."""
+    """Path of the ffmpeg binary imageio-ffmpeg uses, checked to run and to have the H.264 encoder.
+
+    Called before any rendering, so a missing or unusable ffmpeg costs the user seconds, not a finished render.
+    """
+    import subprocess
+
+    hint = "`pip install imageio-ffmpeg` (it bundles one) or point IMAGEIO_FFMPEG_EXE at a working ffmpeg"
     try:
         import imageio_ffmpeg
 
         exe = imageio_ffmpeg.get_ffmpeg_exe()
-    except (ImportError, RuntimeError) as err:
-        raise UserError(f"no ffmpeg for the videos ({err}); `pip install imageio-ffmpeg` or set "
-                        "IMAGEIO_FFMPEG_EXE to an ffmpeg binary, then re-run") from None
-    if not os.access(exe, os.X_OK):
-        raise UserError(f"ffmpeg at {exe} is not executable; set IMAGEIO_FFMPEG_EXE to a working ffmpeg")
+        encoders = subprocess.run([exe, "-hide_banner", "-encoders"], capture_output=True, text=True, timeout=30)
+    except (ImportError, RuntimeError, OSError, subprocess.TimeoutExpired) as err:
+        raise UserError(f"no usable ffmpeg for the videos ({err}); {hint}, then re-run") from None
+    if encoders.returncode != 0 or "libx264" not in encoders.stdout:
+        raise UserError(f"ffmpeg at {exe} cannot encode H.264 (no libx264 encoder); {hint}, then re-run")
     return exe
 
 

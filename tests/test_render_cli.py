@@ -209,6 +209,15 @@ def test_input_path_and_spiral_by_layout(scene_and_checkpoint, tmp_path):
     assert not (tmp_path / "no-spiral").exists()  # refused before the output folder was made
 
 
+def test_no_ffmpeg_fails_before_any_work(scene_and_checkpoint, tmp_path, monkeypatch):
+    scene, ckpt = scene_and_checkpoint
+    for exe in (str(tmp_path / "no-such-ffmpeg"), "/bin/false"):
+        monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", exe)
+        result = _render(scene, ckpt, tmp_path / "out", "--frames", 2)
+        assert result.exit_code == 1 and "ffmpeg" in result.output and "Traceback" not in result.output
+        assert not (tmp_path / "out").exists()
+
+
 def test_bad_input_is_one_line_error(scene_and_checkpoint, tmp_path):
     _, ckpt = scene_and_checkpoint
     empty = tmp_path / "empty"
