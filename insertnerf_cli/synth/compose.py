@@ -22,6 +22,8 @@ from .world import (Light, Material, Placed, Stage, World, ambient_pair, light_t
 _MAX_SKY = 40.0
 # Half-size of the x-y box that object and 360 cameras (at distance ~2.5-5 from a radius-1 subject) need.
 _REACH = np.array([5.0, 5.0])
+# Texture tiles of floors, walls and grounds span 0.2-2 units: coarser tiles blur up close at 200 pixels.
+_SCENERY_TILE = 1.4
 
 
 @dataclass(frozen=True)
@@ -80,17 +82,23 @@ def _identity() -> np.ndarray:
     return np.eye(3)
 
 
-def _cluster(b: _Builder, count: int, floor: float | None, spread: float) -> None:
-    """``count`` subject shapes within ``spread`` of the origin, free-floating or standing on ``floor``."""
+def _cluster(b: _Builder, count: int, floor: float | None) -> None:
+    """One compound subject: a main shape at the origin and ``count - 1`` smaller ones touching or
+    overlapping it (occlusions, contact), free-floating or standing on ``floor``."""
     rng = b.rng
-    for _ in range(count):
+    for k in range(count):
         shape = random_shape(rng)
-        scale = float(rng.uniform(0.35, 0.9))
-        xy = rng.normal(0, spread / 2, 2)
+        scale = float(rng.uniform(0.8, 1.2) if k == 0 else rng.uniform(0.3, 0.7))
+        # Shapes have a radius of ~0.5 per unit of scale: this distance makes neighbours touch or overlap.
+        distance = 0.0 if k == 0 else float(rng.uniform(0.5, 1.0) * (0.5 + 0.5 * scale))
+        direction = rng.normal(size=3)
+        if floor is not None:
+            direction[2] = 0.0
+        direction *= distance / max(np.linalg.norm(direction), 1e-9)
         if floor is None:
-            b.add(shape, random_rotation(rng, False), np.array([*xy, rng.normal(0, spread / 2)]), scale)
+            b.add(shape, random_rotation(rng, False), direction, scale)
         else:
-            b.stand(shape, xy, scale, floor, upright=rng.random() < 0.7)
+            b.stand(shape, direction[:2], scale, floor, upright=rng.random() < 0.7)
 
 
 def _normalize(b: _Builder, radius: float) -> float:
@@ -125,7 +133,7 @@ def compose_object(rng: np.random.Generator) -> World:
     """A NeRF-Synthetic-like subject of radius 1 at the origin, lit by 1-3 lights."""
     b = _Builder(rng)
     on_plate = rng.random() < 0.3
-    _cluster(b, int(rng.integers(1, 6)), 0.0 if on_plate else None, spread=0.8)
+    _cluster(b, int(rng.integers(1, 6)), 0.0 if on_plate else None)
     if on_plate:
         _base_plate(b)
     lowest = _normalize(b, 1.0)
@@ -134,7 +142,8 @@ def compose_object(rng: np.random.Generator) -> World:
     if kind == "textured":
         ground = lowest if on_plate else lowest - float(rng.uniform(0.0, 0.5))
         _enclosure(b, rng, ground, -_REACH, _REACH)
-    lights = [sun_light(rng, rng.uniform(0.6, 1.8)) for _ in range(int(rng.integers(1, 4)))]
+    # A key light and up to two more; the third casts no shadow (cost: one batch of shadow rays per light).
+    lights = [sun_light(rng, rng.uniform(0.6, 1.8), shadows=k < 2) for k in range(int(rng.integers(1, 4)))]
     return b.world(lights, Stage(np.zeros(3), 1.0, ground), background,
                    ambient=float(rng.uniform(0.15, 0.5)), layout="object", surroundings=kind, plate=on_plate)
 
@@ -150,11 +159,11 @@ def _enclosure(b: _Builder, rng: np.random.Generator, floor: float, lo: np.ndarr
         center = (lo + hi) / 2
         size = (hi - lo) * rng.uniform(1.1, 1.6, 2)
         extents = np.array([*size, max(rng.uniform(0.35, 0.6) * size.max(), 2.0 - floor)])
-        material = b.material(random_material(rng, tile_scale=float(size.max() / 6)))
+        material = b.material(random_material(rng, tile_scale=_SCENERY_TILE, glossy=False))
         for name, mesh in geometry.room_faces(extents):
             mesh.apply_translation((center[0], center[1], floor))
             if name != "wall":  # floor and ceiling differ from the walls
-                material = b.material(random_material(rng, tile_scale=float(size.max() / 6)))
+                material = b.material(random_material(rng, tile_scale=_SCENERY_TILE, glossy=False))
             b.add(Shape(mesh, smooth=False, kind=name), _identity(), np.zeros(3), 1.0, material=material,
                   casts_shadow=False)
         for _ in range(int(rng.integers(2, 7))):  # furniture along the walls
@@ -167,7 +176,8 @@ def _enclosure(b: _Builder, rng: np.random.Generator, floor: float, lo: np.ndarr
     b.add(Shape(geometry.sky_dome(radius), smooth=False, kind="sky"), _identity(), np.zeros(3), 1.0,
           material=b.material(sky_material(rng)), casts_shadow=False)
     b.add(Shape(geometry.ground_disc(radius * 0.995, floor), smooth=False, kind="ground"), _identity(),
-          np.zeros(3), 1.0, material=b.material(random_material(rng, tile_scale=span / 3)), casts_shadow=False)
+          np.zeros(3), 1.0, material=b.material(random_material(rng, tile_scale=_SCENERY_TILE, glossy=False)),
+          casts_shadow=False)
     for _ in range(int(rng.integers(3, 12))):  # distant scenery: hills, rocks, trees, blocks
         angle, distance = rng.uniform(0, 2 * np.pi), rng.uniform(span * 1.1, 0.8 * radius)
         b.stand(random_shape(rng), distance * np.array([np.cos(angle), np.sin(angle)]),
@@ -182,21 +192,21 @@ def _scene_lights(rng: np.random.Generator, enclosure: Enclosure) -> list[Light]
     else:
         lights = []
         height = enclosure.ceiling - enclosure.floor
-        for _ in range(int(rng.integers(1, 4))):
+        for k in range(int(rng.integers(1, 4))):
             xy = enclosure.center + rng.uniform(-0.35, 0.35, 2) * enclosure.size
             position = np.array([*xy, enclosure.floor + rng.uniform(0.6, 0.9) * height])
             # Irradiance ~1-2 at the floor below the light, whatever the room size.
             power = rng.uniform(1.0, 2.0) * (position[2] - enclosure.floor) ** 2
-            lights.append(Light("point", position, power * light_tint(rng) / 2))
+            lights.append(Light("point", position, power * light_tint(rng) / 2, shadows=k < 2))
     if rng.random() < 0.4:
-        lights.append(sun_light(rng, rng.uniform(0.1, 0.4)))
+        lights.append(sun_light(rng, rng.uniform(0.1, 0.4), shadows=False))
     return lights
 
 
 def compose_360(rng: np.random.Generator) -> World:
     """Subjects of radius ~1 standing on a floor at the origin, inside a room or under a sky."""
     b = _Builder(rng)
-    _cluster(b, int(rng.integers(1, 6)), 0.0, spread=0.9)
+    _cluster(b, int(rng.integers(1, 6)), 0.0)
     floor = _normalize(b, 1.0)
     enclosure = _enclosure(b, rng, floor, -_REACH, _REACH)
     return b.world(_scene_lights(rng, enclosure), Stage(np.zeros(3), 1.0, floor, enclosure.limit), np.zeros(3),

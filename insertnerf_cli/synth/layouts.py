@@ -70,8 +70,8 @@ def _cameras(frame: Frame, c2w: np.ndarray) -> Cameras:
 
 
 def _fit_distance(rng: np.random.Generator, frame: Frame, radius: float) -> float:
-    """Distance at which a sphere of ``radius`` fills 55-90% of the short side's half field of view."""
-    return float(radius / np.sin(rng.uniform(0.55, 0.9) * frame.short_half_fov))
+    """Distance at which a sphere of ``radius`` fills 60-95% of the short side's half field of view."""
+    return float(radius / np.sin(rng.uniform(0.6, 0.95) * frame.short_half_fov))
 
 
 def object_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int) -> Cameras:

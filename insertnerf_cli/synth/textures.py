@@ -26,13 +26,16 @@ _MIN_LEVEL = 1
 class Texture:
     """A mip pyramid of one tileable texture, packed side by side in one atlas.
 
+    Each level is stored with a one-texel border copied from its opposite edge, so bilinear taps at a
+    tile's edge wrap around without leaving the level.
+
     Attributes:
-        atlas: [SIZE, sum of level sizes, 3] float32 linear RGB; level l occupies columns
-            offsets[l]:offsets[l] + sizes[l] of its first sizes[l] rows.
-        offsets, sizes: [L] int column offset and side length of each level.
+        atlas: [SIZE + 2, sum(sizes + 2), 3] float32 linear RGB; level l (with its border) occupies columns
+            offsets[l]:offsets[l] + sizes[l] + 2 of its first sizes[l] + 2 rows.
+        offsets, sizes: [L] int column offset and side length (without border) of each level.
     """
 
-    atlas: np.ndarray  # [S, sum(sizes), 3]
+    atlas: np.ndarray  # [S + 2, sum(sizes + 2), 3]
     offsets: np.ndarray  # [L]
     sizes: np.ndarray  # [L]
 
@@ -45,11 +48,15 @@ class Texture:
             # Box-filter 2x2: exact for a tile, and keeps the texture periodic.
             levels.append(prev.reshape(prev.shape[0] // 2, 2, prev.shape[1] // 2, 2, 3).mean(axis=(1, 3)))
         sizes = np.array([lv.shape[0] for lv in levels])
-        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-        atlas = np.zeros((sizes[0], sizes.sum(), 3), dtype=np.float32)
+        offsets = np.concatenate([[0], np.cumsum(sizes + 2)[:-1]])
+        atlas = np.zeros((sizes[0] + 2, (sizes + 2).sum(), 3), dtype=np.float32)
         for lv, off in zip(levels, offsets):
-            atlas[:lv.shape[0], off:off + lv.shape[1]] = lv
+            atlas[:lv.shape[0] + 2, off:off + lv.shape[1] + 2] = np.pad(lv, ((1, 1), (1, 1), (0, 0)), mode="wrap")
         return Texture(atlas, offsets, sizes)
+
+
+# cv2.remap wants maps narrower than 2^15; lookups are laid out in rows of this many points.
+_REMAP_ROW = 4096
 
 
 def sample(texture: Texture, uv: np.ndarray, footprint: np.ndarray) -> np.ndarray:
@@ -59,26 +66,22 @@ def sample(texture: Texture, uv: np.ndarray, footprint: np.ndarray) -> np.ndarra
         uv: [P, 2] texture coordinates in tiles (any real value; the texture repeats).
         footprint: [P] size of the pixel on the surface, in tiles.
     Returns:
-        [P, 3] linear RGB.
+        [P, 3] linear RGB (float32).
     """
-    level = np.clip(np.rint(np.log2(np.maximum(footprint * texture.sizes[0], 1e-9))), 0, len(texture.sizes) - 1)
-    level = level.astype(np.int64)
+    level = np.log2(np.maximum(footprint * texture.sizes[0], 1e-9))
+    level = np.clip(np.rint(level), 0, len(texture.sizes) - 1).astype(np.int64)
     size = texture.sizes[level]  # [P]
-    x = (uv[:, 0] - np.floor(uv[:, 0])) * size - 0.5  # pixel centres at +0.5
-    y = (uv[:, 1] - np.floor(uv[:, 1])) * size - 0.5
-    x0, y0 = np.floor(x), np.floor(y)
-    fx, fy = (x - x0).astype(np.float32)[:, None], (y - y0).astype(np.float32)[:, None]
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    width = texture.atlas.shape[1]
-    flat = texture.atlas.reshape(-1, 3)
-    offset = texture.offsets[level]
-
-    def tap(dx: int, dy: int) -> np.ndarray:
-        return flat[((y0 + dy) % size) * width + offset + (x0 + dx) % size]
-
-    top = tap(0, 0) * (1 - fx) + tap(1, 0) * fx
-    bottom = tap(0, 1) * (1 - fx) + tap(1, 1) * fx
-    return top * (1 - fy) + bottom * fy
+    # cv2.remap puts texel centres at integer coordinates: texel i of a level is at i + 1 (after the border),
+    # and continuous coordinate c = frac(u) * size has texel i centred at i + 0.5, hence c + 0.5.
+    x = (uv[:, 0] - np.floor(uv[:, 0])) * size + (texture.offsets[level] + 0.5)
+    y = (uv[:, 1] - np.floor(uv[:, 1])) * size + 0.5
+    count = len(uv)
+    rows = -(-count // _REMAP_ROW)
+    maps = np.zeros((2, rows * _REMAP_ROW), dtype=np.float32)
+    maps[0, :count], maps[1, :count] = x, y
+    maps = maps.reshape(2, rows, _REMAP_ROW)
+    out = cv2.remap(texture.atlas, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1, 3)[:count]
 
 
 # ---------------------------------------------------------------------------------------------- colour

@@ -68,11 +68,13 @@ class Light:
     """A directional light (``vector`` points toward the light) or a point light (``vector`` = position).
 
     ``color`` is linear RGB irradiance on a surface facing the light (at distance 1 for point lights).
+    ``shadows``: cast shadow rays; weak fill lights skip them (their real shadows are soft and faint).
     """
 
     kind: LightKind
     vector: np.ndarray  # [3]
     color: np.ndarray  # [3]
+    shadows: bool = True
 
 
 @dataclass(frozen=True)
@@ -127,12 +129,17 @@ def random_shape(rng: np.random.Generator) -> Shape:
     return THIN[str(rng.choice(list(THIN)))](rng)
 
 
-def random_material(rng: np.random.Generator, tile_scale: float = 1.0) -> Material:
-    """A textured material with a random specular lobe; ``tile_scale`` scales the texture's world size."""
+def random_material(rng: np.random.Generator, tile_scale: float = 1.0, glossy: bool = True) -> Material:
+    """A textured material with a random specular lobe; ``tile_scale`` scales the texture's world size.
+
+    ``glossy=False`` (floors, walls, ground) keeps a faint sheen only: a strong lobe on a large plane turns
+    whole floors white, and matte dielectrics reflect a few percent.
+    """
     texture, name = random_texture(rng)
     shiny = rng.random() < 0.5
+    specular = float(rng.uniform(0.05, 0.6)) if shiny else float(rng.uniform(0.0, 0.05))
     return Material(texture=texture, tile=tile_scale * float(np.exp(rng.uniform(np.log(0.15), np.log(1.5)))),
-                    specular=float(rng.uniform(0.05, 0.6)) if shiny else float(rng.uniform(0.0, 0.05)),
+                    specular=specular if glossy else min(specular, 0.03),
                     shininess=float(np.exp(rng.uniform(np.log(5), np.log(300)))),
                     metallic=float(rng.random() < 0.2), name=name)
 
@@ -151,11 +158,11 @@ def random_rotation(rng: np.random.Generator, upright: bool) -> np.ndarray:
     return Rotation.from_quat(quat / np.linalg.norm(quat)).as_matrix()
 
 
-def sun_light(rng: np.random.Generator, strength: float) -> Light:
+def sun_light(rng: np.random.Generator, strength: float, shadows: bool = True) -> Light:
     """A directional light from a random direction above the horizon, warm to cool white."""
     azimuth, elevation = rng.uniform(0, 2 * np.pi), rng.uniform(np.radians(15), np.radians(75))
     direction = np.array([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
-    return Light("directional", direction, strength * light_tint(rng))
+    return Light("directional", direction, strength * light_tint(rng), shadows)
 
 
 def light_tint(rng: np.random.Generator) -> np.ndarray:
@@ -172,6 +179,6 @@ def ambient_pair(rng: np.random.Generator, strength: float) -> tuple[np.ndarray,
 
 def exposed(world: World, factor: float) -> World:
     """The same world with every light and the ambient term scaled by ``factor`` (skies are unlit)."""
-    lights = tuple(Light(light.kind, light.vector, light.color * factor) for light in world.lights)
+    lights = tuple(replace(light, color=light.color * factor) for light in world.lights)
     return replace(world, lights=lights, ambient_sky=world.ambient_sky * factor,
                    ambient_ground=world.ambient_ground * factor)
