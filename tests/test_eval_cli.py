@@ -9,6 +9,7 @@ import pytest
 from model_fixtures import one_thread  # noqa: F401  (fixture)
 from test_render_cli import make_checkpoint, make_scene, ring_cameras, run
 
+from insertnerf_cli.pipeline import held_out_views
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.views import nearest_views
 
@@ -77,3 +78,11 @@ def test_eval_needs_images_as_large_as_the_ssim_window(checkpoint, tmp_path):
     scene = make_scene(tmp_path / "scene", {"train": 6, "test": 1})
     result = run("eval", scene, "--checkpoint", checkpoint, "--device", "cpu", "--resolution", 8)
     assert result.exit_code == 1 and "SSIM" in result.output and "Traceback" not in result.output
+
+
+def test_held_out_views_rules(tmp_path):
+    split = load_scene(make_scene(tmp_path / "split", {"train": 6, "test": 4}))
+    assert held_out_views(split) == [6, 7, 8, 9]
+    assert held_out_views(split, max_views=2) == [6, 9]  # evenly spread
+    plain = load_scene(make_scene(tmp_path / "plain", {"train": 17}))
+    assert held_out_views(plain) == [0, 8, 16]

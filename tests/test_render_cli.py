@@ -182,6 +182,21 @@ def test_frames_of_a_changed_path_are_not_mixed(tmp_path):
     assert _render(scene, ckpt, out, "--frames", 2, "--overwrite").exit_code == 0
 
 
+def test_encodings_are_reused_while_the_reference_views_repeat(scene_and_checkpoint, tmp_path, monkeypatch):
+    scene, ckpt = scene_and_checkpoint
+    calls = []
+    original = InsertNeRF.encode
+
+    def counted(self, views):
+        calls.append(len(views))
+        return original(self, views)
+
+    monkeypatch.setattr(InsertNeRF, "encode", counted)
+    # All 6 views as references for every frame: one encoding serves the whole orbit.
+    assert _render(scene, ckpt, tmp_path / "all", "--frames", 4, "--views", 6).exit_code == 0
+    assert calls == [6]
+
+
 def test_refuses_a_foreign_non_empty_folder(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
     out = tmp_path / "precious"
