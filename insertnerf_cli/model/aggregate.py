@@ -20,8 +20,12 @@ from torch import Tensor, nn
 
 
 def channel_linear(layer: nn.Linear, x: Tensor) -> Tensor:
-    """Apply ``layer`` along the channel axis of x [..., C, P] -> [..., O, P] (one batched matrix product)."""
-    out = layer.weight @ x
+    """Apply ``layer`` along the channel axis of x [V, C, P] -> [V, O, P].
+
+    An explicit bmm over the expanded weight: ``weight @ x`` broadcasts by transposing x to [V * P, C] first,
+    which measured 3-5x slower forward and backward on CPU.
+    """
+    out = torch.bmm(layer.weight.expand(x.shape[0], -1, -1), x)
     return out + layer.bias[:, None] if layer.bias is not None else out
 
 
@@ -69,11 +73,11 @@ class ScaleAggregator(nn.Module):
         """features [V, C, P] (>= 0, zero where invalid), mask [V, 1, P], ray_diff [V, 4, P] ->
         (descriptor [P, out_dim], dynamic weights [V, 1, P])."""
         pooled = features.amax(dim=0, keepdim=True)  # [1, C, P]
-        hidden = F.relu(channel_linear(self.dynamic_view, features) + self.dynamic_direction.weight @ ray_diff
-                        + self.dynamic_pool.weight @ pooled)  # [V, h, P]
+        hidden = F.relu(channel_linear(self.dynamic_view, features) + channel_linear(self.dynamic_direction, ray_diff)
+                        + channel_linear(self.dynamic_pool, pooled))  # [V, h, P]
         dynamic = masked_softmax(channel_linear(self.dynamic_out, hidden), mask)  # [V, 1, P]
         mean, var = weighted_moments(features, dynamic)  # [1, C, P] each
-        moments = self.halve_moments.weight @ torch.cat([mean, var], dim=1)  # [1, C/2, P]
+        moments = channel_linear(self.halve_moments, torch.cat([mean, var], dim=1))  # [1, C/2, P]
         halved = F.relu(channel_linear(self.halve_view, features) + moments) * mask  # [V, C/2, P]
         static = self.static_weights(ray_diff[:, 3:], mask)  # [V, 1, P]
         s_mean, s_var = weighted_moments(halved, static)
