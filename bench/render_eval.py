@@ -3,6 +3,7 @@
     python3 bench/render_eval.py quality                 # mean PSNR/SSIM on 10 fresh object scenes, 200x200, 10 views
     python3 bench/render_eval.py speed                   # seconds per 200x200 frame with 10 views, peak RSS
     python3 bench/render_eval.py photos                  # wall time: 30 unposed 400x400 photos -> 30 frames
+    python3 bench/render_eval.py path                    # orbit/spiral frames and depth vs the synth ground truth
     python3 bench/render_eval.py quality --checkpoint runs/x/checkpoints/best.pt --scenes 3 --keep /tmp/q
 
 Every figure comes from the real commands run in a child process (`insertnerf synth`, `render`, `eval`), so
@@ -98,25 +99,80 @@ def photos(args: argparse.Namespace, work: Path) -> None:
           "and frames)")
 
 
+def _truth_along(dataset: Path, render_dir: Path) -> list[tuple["np.ndarray", "np.ndarray"]]:
+    """Ground-truth (rgb uint8 [H, W, 3], z-depth [H, W], 0 = no hit) along the cameras of a render's
+    cameras.json, ray cast in the synth world the scene was drawn from (capture effects off)."""
+    import numpy as np
+    import torch
+
+    from insertnerf_cli.cameras import Cameras, intrinsics
+    from insertnerf_cli.synth.capture import develop, draw_settings
+    from insertnerf_cli.synth.raycast import build_scene_mesh
+    from insertnerf_cli.synth.render import auto_exposure, render_view
+    from insertnerf_cli.synth.scene import SceneSpec, scene_cameras, scene_world
+    from insertnerf_cli.synth.world import exposed
+
+    spec = SceneSpec.from_json(json.loads((dataset / "manifest.json").read_text())["scenes"][0])
+    world = scene_world(spec)
+    mesh = build_scene_mesh(world)
+    world = exposed(world, auto_exposure(mesh, world, scene_cameras(spec, world)[0]))
+    settings = draw_settings(np.random.default_rng(0), spec.capture)
+    meta = json.loads((render_dir / "cameras.json").read_text())
+    truth = []
+    for frame in meta["frames"]:
+        get = lambda key: frame.get(key, meta.get(key))  # noqa: E731  (per-frame or shared intrinsics)
+        K = intrinsics(get("fl_x"), get("fl_y"), get("cx"), get("cy"))[None]
+        c2w = torch.tensor(frame["transform_matrix"], dtype=torch.float64)[None]
+        view = render_view(mesh, world, Cameras.from_opengl(K, c2w, get("h"), get("w")))
+        truth.append((develop(view.radiance, settings, np.random.default_rng(0)), view.depth))
+    return truth
+
+
+def path_truth(args: argparse.Namespace, work: Path) -> None:
+    import numpy as np
+
+    from insertnerf_cli.metrics import psnr, ssim
+
+    for layout in ("object", "forward"):
+        data, out = work / f"path_{layout}", work / f"path_{layout}_out"
+        run(["synth", str(data), "--scenes", "1", "--views", str(args.views + 2), "--resolution",
+             str(args.resolution), "--layout", layout, "--seed", str(args.seed), "--workers", "1"])
+        run(["render", str(data / "scene_00000"), "--out", str(out), "--frames", str(args.frames), "--resolution",
+             str(args.resolution), *model_args(args)])
+        meta = json.loads((out / "cameras.json").read_text())
+        scores, rel, valid = [], [], []
+        for frame, (rgb, depth) in zip(meta["frames"], _truth_along(data, out)):
+            ours = iio.imread(out / frame["file_path"]) / 255.0
+            scores.append((psnr(ours, rgb / 255.0), ssim(ours, rgb / 255.0)))
+            mm = iio.imread(out / frame["depth_file_path"]) * meta["depth_unit_scale_factor"]
+            both = (mm > 0) & (depth > 0)
+            valid.append(both.sum() / max((depth > 0).sum(), 1))
+            rel.append(float(np.mean(np.abs(mm[both] - depth[both]) / depth[both])) if both.any() else float("nan"))
+        mean = np.mean(scores, axis=0)
+        print(f"{layout} ({meta['path']}, {args.frames} frames, {args.resolution} px): PSNR {mean[0]:.2f} dB, "
+              f"SSIM {mean[1]:.4f} against the ground truth along the path; depth mean abs. rel. error "
+              f"{np.nanmean(rel):.3f} on {np.mean(valid):.0%} of the pixels that hit a surface", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("figure", choices=["quality", "speed", "photos"])
+    parser.add_argument("figure", choices=["quality", "speed", "photos", "path"])
     parser.add_argument("--checkpoint", type=Path, help="default: the bundled weights")
     parser.add_argument("--views", type=int, default=10, help="reference views")
     parser.add_argument("--resolution", type=int, default=200)
     parser.add_argument("--scenes", type=int, default=10)
     parser.add_argument("--test-views", type=int, default=3)
     parser.add_argument("--seed", type=int, default=900001)
-    parser.add_argument("--frames", type=int, default=None, help="default: 3 (speed), 30 (photos)")
+    parser.add_argument("--frames", type=int, default=None, help="default: 3 (speed), 8 (path), 30 (photos)")
     parser.add_argument("--images", type=int, default=30)
     parser.add_argument("--size", type=int, default=400)
     parser.add_argument("--keep", type=Path, help="work in this folder and keep it")
     args = parser.parse_args()
-    args.frames = args.frames or (3 if args.figure == "speed" else 30)
+    args.frames = args.frames or {"speed": 3, "path": 8}.get(args.figure, 30)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        {"quality": quality, "speed": speed, "photos": photos}[args.figure](args, work)
+        {"quality": quality, "speed": speed, "photos": photos, "path": path_truth}[args.figure](args, work)
 
 
 if __name__ == "__main__":
