@@ -12,6 +12,7 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import resource
 import statistics
 import time
@@ -56,41 +57,57 @@ def part_sizes(model: InsertNeRF) -> dict[str, int]:
     return sizes
 
 
-def time_train(model: InsertNeRF, args: argparse.Namespace) -> float:
-    """Median seconds of one training step (encode + both passes + losses + backward + Adam)."""
+class Timer:
+    """Wall and CPU seconds (all threads of this process) of a block; CPU time is what a shared machine's
+    contention does not inflate, so both are reported."""
+
+    def __enter__(self) -> "Timer":
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.wall, self.cpu = time.perf_counter() - self.wall, time.process_time() - self.cpu
+
+
+def medians(timers: list[Timer]) -> tuple[float, float]:
+    return statistics.median(t.wall for t in timers), statistics.median(t.cpu for t in timers)
+
+
+def time_train(model: InsertNeRF, args: argparse.Namespace) -> tuple[float, float]:
+    """Median (wall, CPU) seconds of one training step (encode + both passes + losses + backward + Adam)."""
     cams = orbit(args.views + 1, args.resolution)
     images = torch.rand(args.views + 1, args.resolution, args.resolution, 3)
     views = SourceViews(images[1:], cams.subset(list(range(1, args.views + 1))))
     rays = rays_for_image(cams.subset([0]), torch.tensor([NEAR]), torch.tensor([FAR]))
     optimiser = torch.optim.Adam(model.parameters(), lr=1e-4)
     model.train()
-    times = []
+    timers = []
     for _ in range(args.repeats + 1):
         pick = torch.randint(0, len(rays), (args.rays,))
-        start = time.perf_counter()
-        encoded = model.encode(views)
-        out = model(encoded, rays[pick], train=True)
-        loss = model.losses(out, images[0].reshape(-1, 3)[pick], encoded).total
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times[1:])
+        with Timer() as timer:
+            encoded = model.encode(views)
+            out = model(encoded, rays[pick], train=True)
+            loss = model.losses(out, images[0].reshape(-1, 3)[pick], encoded).total
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+        timers.append(timer)
+    return medians(timers[1:])
 
 
-def time_render(model: InsertNeRF, args: argparse.Namespace) -> float:
-    """Median seconds to encode the reference views and render one frame."""
+def time_render(model: InsertNeRF, args: argparse.Namespace) -> tuple[float, float]:
+    """Median (wall, CPU) seconds to encode the reference views and render one frame."""
     views = SourceViews(torch.rand(args.render_views, args.frame, args.frame, 3), orbit(args.render_views, args.frame))
     camera = orbit(1, args.frame, phase=0.3)
     model.eval()
-    times = []
-    for _ in range(max(1, args.repeats // 2) + 1):
-        start = time.perf_counter()
-        with torch.inference_mode():
-            encoded = model.encode(views)
-        render_image(model, encoded, camera, NEAR, FAR, chunk=args.chunk)
-        times.append(time.perf_counter() - start)
-    return statistics.median(times[1:])
+    timers = []
+    for _ in range(args.render_repeats + 1):
+        with Timer() as timer:
+            with torch.inference_mode():
+                encoded = model.encode(views)
+            render_image(model, encoded, camera, NEAR, FAR, chunk=args.chunk)
+        timers.append(timer)
+    return medians(timers[1:])
 
 
 def peak_rss_gb() -> float:
@@ -106,9 +123,11 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=160, help="training image side (pixels)")
     parser.add_argument("--frame", type=int, default=200, help="rendered frame side (pixels)")
     parser.add_argument("--render-views", type=int, default=10)
-    parser.add_argument("--chunk", type=int, default=512)
+    parser.add_argument("--chunk", type=int, default=128)
     parser.add_argument("--modes", default="hyper,concat")
+    parser.add_argument("--render-repeats", type=int, default=1)
     parser.add_argument("--skip-render", action="store_true")
+    parser.add_argument("--skip-train", action="store_true")
     parser.add_argument("--config", default="{}", help="JSON overrides of ModelConfig fields")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -122,10 +141,14 @@ def main() -> None:
         for name, size in part_sizes(model).items():
             print(f"  {name:45s} {size:>9,d}")
         if not args.skip_render:
-            seconds = time_render(model, args)
-            print(f"  render: {seconds:.2f} s per {args.frame}x{args.frame} frame, peak RSS {peak_rss_gb():.2f} GB")
-        step = time_train(model, args)
-        print(f"  train: {step:.3f} s per step = {args.rays / step:.0f} rays/s, peak RSS {peak_rss_gb():.2f} GB")
+            wall, cpu = time_render(model, args)
+            print(f"  render: {wall:.2f} s wall ({cpu:.2f} s CPU) per {args.frame}x{args.frame} frame, "
+                  f"peak RSS {peak_rss_gb():.2f} GB")
+        if not args.skip_train:
+            wall, cpu = time_train(model, args)
+            print(f"  train: {wall:.3f} s wall ({cpu:.3f} s CPU) per step = {args.rays / wall:.0f} rays/s wall, "
+                  f"{args.rays / cpu:.0f} rays per CPU-second, peak RSS {peak_rss_gb():.2f} GB")
+    print(f"\nload average while measuring: {os.getloadavg()[0]:.1f} (other processes share the cores)")
 
 
 if __name__ == "__main__":
