@@ -179,7 +179,8 @@ def _enclosure(b: _Builder, rng: np.random.Generator, floor: float, lo: np.ndarr
           np.zeros(3), 1.0, material=b.material(random_material(rng, tile_scale=_SCENERY_TILE, glossy=False)),
           casts_shadow=False)
     for _ in range(int(rng.integers(3, 12))):  # distant scenery: hills, rocks, trees, blocks
-        angle, distance = rng.uniform(0, 2 * np.pi), rng.uniform(span * 1.1, 0.8 * radius)
+        # Beyond the needed space when the dome allows it; deep forward scenes mix scenery into their far part.
+        angle, distance = rng.uniform(0, 2 * np.pi), rng.uniform(min(span * 1.1, 0.6 * radius), 0.8 * radius)
         b.stand(random_shape(rng), distance * np.array([np.cos(angle), np.sin(angle)]),
                 float(rng.uniform(0.05, 0.2) * distance), floor)
     return Enclosure("sky", (lo + hi) / 2, hi - lo, floor, floor + radius, span)

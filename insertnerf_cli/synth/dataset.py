@@ -23,7 +23,7 @@ from .capture import CaptureOptions
 from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, render_scene
 
 # Bump when a change makes the same seed and options give other pixels.
-GENERATOR_VERSION = "synth-1"
+GENERATOR_VERSION = "synth-2"
 MANIFEST = "manifest.json"
 _TEMP_PREFIX = ".tmp-"
 LayoutChoice = Literal["object", "forward", "360", "mixed"]
@@ -168,7 +168,11 @@ def render_into(out: Path, spec: SceneSpec) -> RenderedScene:
     temp = out / f"{_TEMP_PREFIX}{spec.name}-{os.getpid()}"
     shutil.rmtree(temp, ignore_errors=True)
     try:
-        result = render_scene(spec, temp)
+        try:
+            result = render_scene(spec, temp)
+        except Exception as err:  # a generator bug: name the scene so it can be rebuilt and reported
+            raise RuntimeError(f"{spec.name} (seed {spec.seed}, layout {spec.layout}) failed: "
+                               f"{type(err).__name__}: {err}") from err
         os.replace(temp, out / spec.name)
         return result
     finally:

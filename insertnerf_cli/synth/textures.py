@@ -94,11 +94,25 @@ def linear_to_srgb(rgb: np.ndarray) -> np.ndarray:
     return np.where(rgb <= 0.0031308, rgb * 12.92, 1.055 * rgb ** (1 / 2.4) - 0.055)
 
 
+# Hue ranges of common real materials: wood, earth and skin; foliage; sky, water and denim.
+_NATURAL_HUES = ((0.02, 0.12), (0.15, 0.4), (0.53, 0.66))
+
+
 def random_color(rng: np.random.Generator, hue: float | None = None) -> np.ndarray:
-    """An sRGB colour [3] biased toward the muted colours of real scenes, sometimes vivid."""
-    h = rng.random() if hue is None else (hue + rng.normal(0, 0.04)) % 1.0
-    s = rng.beta(1.2, 2.0) if rng.random() < 0.8 else rng.uniform(0.6, 1.0)
-    v = rng.uniform(0.15, 0.95)
+    """An sRGB colour [3] biased toward real scenes: 25% near-greys, 35% natural hues, mostly muted, few vivid."""
+    kind = rng.random()
+    if hue is not None:
+        h = (hue + rng.normal(0, 0.04)) % 1.0
+    elif kind < 0.6:
+        low, high = _NATURAL_HUES[rng.integers(len(_NATURAL_HUES))]
+        h = rng.uniform(low, high)
+    else:
+        h = rng.random()
+    if kind < 0.25:
+        s = rng.uniform(0.0, 0.08)
+    else:
+        s = rng.beta(1.2, 2.5) if rng.random() < 0.85 else rng.uniform(0.6, 1.0)
+    v = rng.uniform(0.12, 0.95)
     return np.array(colorsys.hsv_to_rgb(h, s, v))
 
 
