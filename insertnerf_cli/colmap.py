@@ -55,10 +55,10 @@ class PosesOptions:
         verbose: let pycolmap print its own log.
         check: limits of the two-view consistency check (:mod:`insertnerf_cli.posecheck`).
         allow_inconsistent: only warn when the pose check fails (else it is an error).
-        check_pairs: at most this many image pairs are compared by the check.
+        check_pairs: at most this many image pairs are compared by the check (general pairs first).
         exhaustive_limit: the "auto" matcher's switch point.
         sequential_overlap: neighbours matched to each image by the sequential matcher.
-        seed: random seed of the mapper and of the check's pair sampling.
+        seed: random seed of the mapper.
     """
 
     matcher: Matcher = "auto"
@@ -69,7 +69,7 @@ class PosesOptions:
     verbose: bool = False
     check: CheckLimits = CheckLimits()
     allow_inconsistent: bool = False
-    check_pairs: int = 150
+    check_pairs: int = 300
     exhaustive_limit: int = 100
     sequential_overlap: int = 10
     seed: int = 0
@@ -302,7 +302,7 @@ def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImage
     # Keypoints are in full-resolution pixels; SIFT saw the image shrunk to max_image_size.
     shrink = max(1.0, max(inputs.height, inputs.width) / options.max_image_size)
     limits = replace(options.check, threshold_px=options.check.threshold_px * shrink)
-    check = check_relative_poses(_pair_matches(db_path, rec, options.check_pairs, options.seed), limits)
+    check = check_relative_poses(_pair_matches(db_path, rec, options.check_pairs), limits)
     stages.done(check.summary())
     if not check.passed:
         message = (f"the poses contradict the images' own two-view geometry ({check.summary()}; limits "
@@ -315,28 +315,30 @@ def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImage
     return check
 
 
-def _pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int, seed: int) -> list[PairMatches]:
-    """Raw matches (normalised coordinates) and model relative poses of up to ``max_pairs`` registered pairs."""
+def _pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int) -> list[PairMatches]:
+    """Raw matches (normalised coordinates) and model relative poses of up to ``max_pairs`` registered pairs.
+
+    General (non-planar) pairs come first, most matches first: a torn trajectory shows in its strongest links.
+    """
     poses = {i: _cam_from_world(img) for i, img in rec.images.items() if img.has_pose}
     with pycolmap.Database.open(db_path) as db:
         pair_ids, geometries = db.read_two_view_geometries()
-        pairs = [(*pycolmap.pair_id_to_image_pair(p), g.config in _GENERAL_CONFIGS)
+        pairs = [(*pycolmap.pair_id_to_image_pair(p), g.config in _GENERAL_CONFIGS, len(g.inlier_matches))
                  for p, g in zip(pair_ids, geometries)
                  if len(g.inlier_matches) >= MIN_PAIR_INLIERS and g.config in _GENERAL_CONFIGS + _PLANAR_CONFIGS]
-        pairs = [(a, b, general) for a, b, general in pairs if a in poses and b in poses]
-        if len(pairs) > max_pairs:  # a spread-out sample; every pair would cost seconds on large sets
-            pick = np.random.default_rng(seed).choice(len(pairs), size=max_pairs, replace=False)
-            pairs = [pairs[i] for i in sorted(pick)]
+        pairs = sorted((p for p in pairs if p[0] in poses and p[1] in poses), key=lambda p: (not p[2], -p[3]))
+        keypoints: dict[int, np.ndarray] = {}
         out = []
-        for a, b, general in pairs:
+        for a, b, general, _ in pairs[:max_pairs]:
+            for i in (a, b):
+                if i not in keypoints:  # normalised camera coordinates [K, 2], distortion removed
+                    keypoints[i] = rec.images[i].camera.cam_from_img(db.read_keypoints(i)[:, :2].astype(np.float64))
             matches = db.read_matches(a, b).astype(np.int64)  # [M, 2]
-            cams = rec.images[a].camera, rec.images[b].camera
-            pts = [cam.cam_from_img(db.read_keypoints(i)[idx, :2].astype(np.float64))
-                   for cam, i, idx in zip(cams, (a, b), matches.T)]
             r1, t1, r2, t2 = poses[a][:, :3], poses[a][:, 3], poses[b][:, :3], poses[b][:, 3]
             rot = r2 @ r1.T
-            out.append(PairMatches((rec.images[a].name, rec.images[b].name), pts[0], pts[1], rot,
-                                   t2 - rot @ t1, float(cams[0].mean_focal_length()), general))
+            out.append(PairMatches((rec.images[a].name, rec.images[b].name), keypoints[a][matches[:, 0]],
+                                   keypoints[b][matches[:, 1]], rot, t2 - rot @ t1,
+                                   float(rec.images[a].camera.mean_focal_length()), general))
     return out
 
 
