@@ -186,21 +186,27 @@ def _worker(job: tuple[Path, SceneSpec]) -> RenderedScene:
 def _init_worker() -> None:
     """One thread per worker process: the workers are the parallelism, and oversubscribed torch threads
     slowed ray generation 50-fold on a busy 2-core machine."""
+    import cv2
     import torch
 
     torch.set_num_threads(1)
+    cv2.setNumThreads(1)
 
 
 @contextmanager
-def _single_threaded_torch() -> Iterator[None]:
+def _single_threaded() -> Iterator[None]:
+    """Torch and OpenCV on one thread while rendering in this process (restored afterwards)."""
+    import cv2
     import torch
 
-    before = torch.get_num_threads()
+    before = torch.get_num_threads(), cv2.getNumThreads()
     torch.set_num_threads(1)
+    cv2.setNumThreads(1)
     try:
         yield
     finally:
-        torch.set_num_threads(before)
+        torch.set_num_threads(before[0])
+        cv2.setNumThreads(before[1])
 
 
 def _run(out: Path, pending: list[SceneSpec], workers: int, progress: bool, total: int) -> Iterator[RenderedScene]:
@@ -212,7 +218,7 @@ def _run(out: Path, pending: list[SceneSpec], workers: int, progress: bool, tota
     start = time.perf_counter()
     try:
         if workers <= 1 or len(pending) <= 1:
-            with _single_threaded_torch():
+            with _single_threaded():
                 results: Iterator[RenderedScene] = (render_into(out, s) for s in pending)
                 yield from _report(results, bar, start)
         else:
