@@ -34,7 +34,8 @@ class ModelConfig:
     nerf_layers: int = 4  # geometry layers, each preceded by a HyperNet module
     appearance_width: int = 32
     z_branches: int = 2  # progressive appearance hyper branches (paper Table 9: 2 is the sweet spot)
-    film_hidden: int = 16  # hidden width of the DFiLM frequency/shift MLP
+    film_hidden: int = 16  # hidden width of the per-sample bias / DFiLM frequency and shift MLP
+    filter_nodes: int = 8  # rank of the sampling-aware filter's adjacency over the samples of a ray
     conditioning: Literal["hyper", "concat"] = "hyper"  # "concat": the feature-concatenation ablation
     # --- sampling and encodings
     samples_coarse: int = 64

@@ -17,7 +17,7 @@ SPHERE = 1.0  # sphere radius
 NEAR, FAR = RADIUS - 1.5 * SPHERE, RADIUS + 1.5 * SPHERE
 
 TINY = ModelConfig(encoder_widths=(8, 8, 8, 8), feature_dims=(4, 4, 4), backbone_decoder_width=4, aggregate_hidden=4,
-                   nerf_width=16, nerf_layers=3, appearance_width=16, z_branches=2, film_hidden=8,
+                   nerf_width=16, nerf_layers=3, appearance_width=16, z_branches=2, film_hidden=8, filter_nodes=4,
                    samples_coarse=16, samples_fine=16, pe_freqs_pos=3, pe_freqs_dir=2, num_views=4)
 
 

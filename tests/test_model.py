@@ -97,7 +97,8 @@ def test_module_shapes_and_gradients():
     r, s, d = 3, 8, 5
     cond = torch.randn(r, s, d, requires_grad=True)
     x = torch.randn(r, s, 6, requires_grad=True)
-    outs = [SamplingFilter(d, s)(cond), GeometryHyperLayer(d, s, 6, 7, 4)(x, cond), AppearanceHyper(d, s, 6, 3)(x, cond)]
+    outs = [SamplingFilter(d, s, 2)(cond), GeometryHyperLayer(d, s, 6, 7, 4, 2)(x, cond),
+            AppearanceHyper(d, s, 6, 3, 2)(x, cond)]
     assert [tuple(o.shape) for o in outs] == [(r, s, d), (r, s, 7), (r, s, 6)]
     agg = ScaleAggregator(6, 3, 4, 0.2)
     feats = torch.rand(4, 6, r * s, requires_grad=True)

@@ -27,34 +27,36 @@ class RayWeights(nn.Module):
 
     def forward(self, cond: Tensor) -> Tensor:
         rows = F.relu(self.features(cond))  # [R, S, I]
-        # r: rays, s: samples, i: input features, o: output features
-        return (torch.einsum("rsi,os->rio", rows, self.mix.weight) + self.mix.bias) * self.gain
+        # W[r] = rows[r]^T mix^T: [I, S] @ [S, O] per ray, as one bmm (einsum copies the operands here)
+        weights = torch.bmm(rows.transpose(1, 2), self.mix.weight.T.expand(rows.shape[0], -1, -1))  # [R, I, O]
+        return (weights + self.mix.bias) * self.gain
 
 
 class GeometryHyperLayer(nn.Module):
     """x [R, S, I], cond [R, S, D] -> [R, S, O] through a generated linear layer, a generated bias and DFiLM."""
 
-    def __init__(self, cond_dim: int, samples: int, in_dim: int, out_dim: int, film_hidden: int) -> None:
+    def __init__(self, cond_dim: int, samples: int, in_dim: int, out_dim: int, film_hidden: int,
+                 nodes: int) -> None:
         super().__init__()
-        self.filter = SamplingFilter(cond_dim, samples)
+        self.filter = SamplingFilter(cond_dim, samples, nodes)
         self.weights = RayWeights(cond_dim, samples, in_dim, out_dim)
-        self.bias = nn.Linear(cond_dim, out_dim)
+        # One per-sample MLP generates the bias and the DFiLM frequency and shift (3 O outputs): one call, not two.
         self.film = nn.Sequential(nn.Linear(cond_dim, film_hidden), nn.LeakyReLU(0.2),
-                                  nn.Linear(film_hidden, 2 * out_dim))
+                                  nn.Linear(film_hidden, 3 * out_dim))
 
     def forward(self, x: Tensor, cond: Tensor) -> Tensor:
         h = self.filter(cond)  # [R, S, D]
-        y = torch.bmm(x, self.weights(h)) + self.bias(h)  # [R, S, O]
-        freq, shift = self.film(h).chunk(2, dim=-1)
+        bias, freq, shift = self.film(h).chunk(3, dim=-1)  # [R, S, O] each
+        y = torch.bmm(x, self.weights(h)) + bias  # [R, S, O]
         return (1.0 + freq) * y + shift
 
 
 class AppearanceHyper(nn.Module):
     """Z progressive hyper branches: q [R, S, A] -> [R, S, A] conditioned on cond [R, S, D]."""
 
-    def __init__(self, cond_dim: int, samples: int, width: int, branches: int) -> None:
+    def __init__(self, cond_dim: int, samples: int, width: int, branches: int, nodes: int) -> None:
         super().__init__()
-        self.filter = SamplingFilter(cond_dim, samples)
+        self.filter = SamplingFilter(cond_dim, samples, nodes)
         self.branches = nn.ModuleList(RayWeights(cond_dim, samples, width, width) for _ in range(branches))
         self.progress = nn.ModuleList(nn.Linear(cond_dim, cond_dim) for _ in range(branches - 1))
         self.out = nn.Linear(width, width)

@@ -42,7 +42,7 @@ class FieldOutput:
 
 
 def _geometry_conditioner(cfg: ModelConfig, cond_dim: int, samples: int, in_dim: int) -> nn.Module:
-    hyper = GeometryHyperLayer(cond_dim, samples, in_dim, cfg.nerf_width, cfg.film_hidden)
+    hyper = GeometryHyperLayer(cond_dim, samples, in_dim, cfg.nerf_width, cfg.film_hidden, cfg.filter_nodes)
     if cfg.conditioning == "hyper":
         return hyper
     return ConcatLayer(cond_dim, in_dim, cfg.nerf_width,
@@ -51,7 +51,7 @@ def _geometry_conditioner(cfg: ModelConfig, cond_dim: int, samples: int, in_dim:
 
 def _appearance_conditioner(cfg: ModelConfig, cond_dim: int, samples: int) -> nn.Module:
     width = cfg.appearance_width
-    hyper = AppearanceHyper(cond_dim, samples, width, cfg.z_branches)
+    hyper = AppearanceHyper(cond_dim, samples, width, cfg.z_branches, cfg.filter_nodes)
     if cfg.conditioning == "hyper":
         return hyper
     fixed = count_parameters(ConcatAppearance(cond_dim, width, 1)) - count_parameters(ConcatLayer(cond_dim, width,
