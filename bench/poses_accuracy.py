@@ -61,16 +61,18 @@ def scene_mesh() -> trimesh.Trimesh:
 
 
 def orbit_cameras(views: int, size: tuple[int, int], radius: float, fov_deg: float,
-                  height: Callable[[float], float]) -> Cameras:
+                  height: Callable[[float], float], arc_deg: float = 360.0) -> Cameras:
     """``views`` cameras on a circle (world z up) at ``height(angle)``, looking at the origin, OpenCV c2w.
 
-    ``size`` is (height, width) in pixels; ``fov_deg`` the horizontal field of view.
+    ``size`` is (height, width) in pixels; ``fov_deg`` the horizontal field of view; the cameras are spread
+    evenly over ``arc_deg`` degrees of the circle (a full turn leaves no gap between the last and the first).
     """
     rows, cols = size
     f = 0.5 * cols / math.tan(math.radians(fov_deg) / 2)
     c2w = torch.zeros(views, 4, 4, dtype=torch.float64)
+    step = math.radians(arc_deg) / (views if arc_deg >= 360.0 else max(views - 1, 1))
     for i in range(views):
-        a = 2 * math.pi * i / views
+        a = step * i
         centre = torch.tensor([radius * math.cos(a), radius * math.sin(a), height(a)], dtype=torch.float64)
         forward = -centre / centre.norm()
         right = torch.linalg.cross(forward, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
@@ -136,9 +138,10 @@ def render(mesh: trimesh.Trimesh, cameras: Cameras, colouring: Colouring,
     return images
 
 
-def render_scene(views: int, size: int, seed: int = 0) -> RenderedScene:
+def render_scene(views: int, size: int, seed: int = 0, arc_deg: float = 360.0) -> RenderedScene:
     radius = 3.0
-    cameras = orbit_cameras(views, (size, size), radius, fov_deg=60.0, height=lambda a: 0.6 + 0.3 * math.sin(3 * a))
+    cameras = orbit_cameras(views, (size, size), radius, fov_deg=60.0, height=lambda a: 0.6 + 0.3 * math.sin(3 * a),
+                            arc_deg=arc_deg)
     # The same seed for every view: the texture is a property of the world, not of the image.
     images = render(scene_mesh(), cameras, lambda hits, _: solid_texture(hits, seed))
     return RenderedScene(images, cameras, radius)

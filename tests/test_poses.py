@@ -1,7 +1,9 @@
 """`insertnerf poses`: failures are one clear line with nothing half-written; previews and the pose check behave."""
 from __future__ import annotations
 
+import importlib.util
 import math
+import sys
 from pathlib import Path
 
 import cv2
@@ -13,9 +15,12 @@ from click.testing import CliRunner
 
 from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.cli import cli
+from insertnerf_cli.colmap import PosesOptions, estimate_poses
 from insertnerf_cli.commands.poses import default_out
+from insertnerf_cli.errors import UserError
 from insertnerf_cli.posecheck import CheckLimits, PairMatches, check_relative_poses, rotation_angle_deg
 from insertnerf_cli.preview import frustum_mesh, write_camera_frustums, write_point_cloud
+from insertnerf_cli.scenes import load_scene
 
 
 def _noise_images(folder: Path, count: int, size: tuple[int, int] = (96, 128), seed: int = 0) -> list[Path]:
@@ -196,3 +201,51 @@ def test_point_cloud_round_trip(tmp_path: Path) -> None:
     cloud = trimesh.load(tmp_path / "sparse.ply")
     assert np.allclose(cloud.vertices, xyz)
     assert np.array_equal(np.asarray(cloud.colors)[:, :3], rgb)
+
+
+# ---------------------------------------------------------------- a real SfM run
+def _bench_scene():
+    """The accuracy bench's renderer (bench/poses_accuracy.py): a textured room, ray cast with embree."""
+    path = Path(__file__).resolve().parents[1] / "bench" / "poses_accuracy.py"
+    spec = importlib.util.spec_from_file_location("poses_accuracy_bench", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up while being created
+    spec.loader.exec_module(module)
+    return module
+
+
+def _relative_rotations(c2w: torch.Tensor) -> np.ndarray:
+    """cam(i+1)-from-cam(i) rotations [N-1, 3, 3]: unchanged by any similarity of the world."""
+    rot = c2w[:, :3, :3].numpy()
+    return np.einsum("nji,njk->nik", rot[1:], rot[:-1])
+
+
+def test_real_sfm_on_rendered_views(tmp_path: Path) -> None:
+    bench = _bench_scene()
+    truth = bench.render_scene(views=8, size=200, arc_deg=70.0)
+    (tmp_path / "photos").mkdir()
+    for i, img in enumerate(truth.images):
+        cv2.imwrite(str(tmp_path / "photos" / f"view_{i:02d}.png"), img[..., ::-1])
+    result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
+    assert result.exit_code == 0, result.output
+    assert "8/8 images registered" in result.output
+    scene_dir = tmp_path / "scene"
+    for name in ("transforms.json", "sparse.ply", "cameras.ply", "colmap/database.db", "colmap/sparse/0/images.bin"):
+        assert (scene_dir / name).is_file(), name
+    _only_inputs_left(tmp_path, "photos", "scene")
+
+    scene = load_scene(scene_dir)  # nerfstudio reader: OpenGL c2w in the file, OpenCV once loaded
+    assert scene.format == "nerfstudio" and len(scene) == 8
+    assert all(p.parent == scene_dir / "images" and p.is_file() for p in scene.image_paths)
+    assert bool((scene.near > 0).all() and (scene.far > scene.near).all())
+    # Whole matrices, not just angles: an axis-convention slip conjugates them and changes their axes.
+    est, gt = _relative_rotations(scene.cameras.c2w), _relative_rotations(truth.cameras.c2w)
+    errors = [rotation_angle_deg(e.T @ g) for e, g in zip(est, gt)]
+    assert max(errors) < 0.5, errors
+
+    # The consistency check's failure path on the same photos: forced by an impossible limit, it must stop
+    # before anything is written and name the override.
+    impossible = PosesOptions(check=CheckLimits(max_contradicted_share=-1.0))
+    with pytest.raises(UserError, match="--allow-inconsistent"):
+        estimate_poses(tmp_path / "photos", tmp_path / "scene2", impossible, report=lambda line: None)
+    _only_inputs_left(tmp_path, "photos", "scene")
