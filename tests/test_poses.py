@@ -19,6 +19,7 @@ from insertnerf_cli.colmap import PosesOptions, estimate_poses
 from insertnerf_cli.commands.poses import default_out
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.posecheck import CheckLimits, PairMatches, check_relative_poses, rotation_angle_deg
+from insertnerf_cli.poses_io import read_inputs
 from insertnerf_cli.preview import frustum_mesh, write_camera_frustums, write_point_cloud
 from insertnerf_cli.scenes import load_scene
 
@@ -112,6 +113,21 @@ def test_output_that_contains_the_inputs_is_refused(tmp_path: Path) -> None:
 
 def test_default_out_is_a_sibling(tmp_path: Path) -> None:
     assert default_out(tmp_path / "photos") == tmp_path.resolve() / "photos_scene"
+
+
+def test_exif_rotated_photos_are_turned_upright_for_sfm(tmp_path: Path) -> None:
+    from PIL import Image
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):  # stored 64 wide x 48 high, EXIF 6 = shown turned a quarter: 48 wide x 64 high
+        exif = Image.Exif()
+        exif[0x0112] = 6
+        Image.fromarray(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)).save(folder / f"p{i}.jpg", exif=exif)
+    inputs = read_inputs(folder, tmp_path / "upright")
+    assert (inputs.height, inputs.width) == (64, 48) and inputs.folder == tmp_path / "upright"
+    assert cv2.imread(str(inputs.folder / "p0.jpg")).shape[:2] == (64, 48)
 
 
 # ---------------------------------------------------------------- the two-view check, on exact geometry
