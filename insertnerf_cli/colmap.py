@@ -154,7 +154,7 @@ class _Stages:
 
 @contextmanager
 def _pycolmap_log(verbose: bool) -> Iterator[None]:
-    """Quiet pycolmap's glog (errors only) unless verbose; restore the previous level afterwards."""
+    """Silence pycolmap's glog unless verbose (our own messages report its failures); restore the level after."""
     previous = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = 0 if verbose else 3
     try:
@@ -202,6 +202,7 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
         stages.start("writing the scene", "undistorting to PINHOLE")
         undistorted = _undistort(model_dir, inputs.folder, tmp)
         shutil.rmtree(work / "mapping")
+        shutil.rmtree(work / "upright", ignore_errors=True)  # EXIF-turned copies, now in images/ undistorted
         scene = write_scene(tmp, _model_arrays(undistorted))
         stages.done(f"{len(scene.names)} images, transforms.json, sparse.ply, cameras.ply")
     registered = set(scene.names)
