@@ -203,3 +203,27 @@ def test_look_at_is_a_rotation_that_centres_the_target():
 def test_held_out_views_are_spread_and_counted_exactly():
     assert held_out_indices(50, 8) == sorted(set(held_out_indices(50, 8))) and len(held_out_indices(50, 8)) == 8
     assert held_out_indices(5, 5) == [0, 1, 2, 3, 4] and held_out_indices(5, 0) == []
+
+
+@pytest.mark.parametrize("layout", ["object", "forward", "360"])
+def test_cameras_stay_inside_the_enclosure_and_outside_every_shape(layout):
+    from insertnerf_cli.synth.compose import COMPOSERS
+    from insertnerf_cli.synth.layouts import RIGS, random_frame
+
+    enclosure = {"wall", "floor", "ceiling", "sky", "ground"}
+    # Object scenes 6, 7, 39, 47 have a room or sky around them (39 and 47 once put cameras outside the room).
+    for seed in {"object": (6, 7, 39, 47)}.get(layout, range(4)):
+        rng = np.random.default_rng(seed)
+        world = COMPOSERS[layout](rng)
+        eyes = RIGS[layout](rng, world.stage, random_frame(rng, 64, (16 / 9,)), 30).centers.numpy()
+        room = [o.world_vertices() for o in world.objects if o.shape.kind in ("wall", "floor", "ceiling")]
+        if room:
+            corners = np.concatenate(room)
+            assert np.all((eyes > corners.min(axis=0)) & (eyes < corners.max(axis=0)))
+        for placed in world.objects:
+            vertices = placed.world_vertices()
+            if placed.shape.kind == "sky":
+                assert np.linalg.norm(eyes, axis=1).max() < np.linalg.norm(vertices, axis=1).min()
+            elif placed.shape.kind not in enclosure:  # not even inside the shape's bounding box
+                low, high = vertices.min(axis=0), vertices.max(axis=0)
+                assert not np.any(np.all((eyes > low) & (eyes < high), axis=1)), placed.shape.kind

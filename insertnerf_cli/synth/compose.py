@@ -22,6 +22,8 @@ from .world import (Light, Material, Placed, Stage, World, ambient_pair, light_t
 _MAX_SKY = 40.0
 # Half-size of the x-y box that object and 360 cameras (at distance ~2.5-5 from a radius-1 subject) need.
 _REACH = np.array([5.0, 5.0])
+# Lowest ceiling above the stage centre: clears a radius-1 subject and forward camera planes.
+_MIN_CEILING = 2.5
 # Texture tiles of floors, walls and grounds span 0.2-2 units: coarser tiles blur up close at 200 pixels.
 _SCENERY_TILE = 1.4
 
@@ -138,13 +140,14 @@ def compose_object(rng: np.random.Generator) -> World:
         _base_plate(b)
     lowest = _normalize(b, 1.0)
     kind, background = _random_background(rng)
-    ground = lowest if on_plate else None
+    stage = Stage(np.zeros(3), 1.0, lowest if on_plate else None)
     if kind == "textured":
         ground = lowest if on_plate else lowest - float(rng.uniform(0.0, 0.5))
-        _enclosure(b, rng, ground, -_REACH, _REACH)
+        enclosure = _enclosure(b, rng, ground, -_REACH, _REACH)
+        stage = Stage(np.zeros(3), 1.0, ground, enclosure.limit, ceiling=enclosure.ceiling)
     # A key light and up to two more; the third casts no shadow (cost: one batch of shadow rays per light).
     lights = [sun_light(rng, rng.uniform(0.6, 1.8), shadows=k < 2) for k in range(int(rng.integers(1, 4)))]
-    return b.world(lights, Stage(np.zeros(3), 1.0, ground), background,
+    return b.world(lights, stage, background,
                    ambient=float(rng.uniform(0.15, 0.5)), layout="object", surroundings=kind, plate=on_plate)
 
 
@@ -158,7 +161,7 @@ def _enclosure(b: _Builder, rng: np.random.Generator, floor: float, lo: np.ndarr
     if rng.random() < 0.5:
         center = (lo + hi) / 2
         size = (hi - lo) * rng.uniform(1.1, 1.6, 2)
-        extents = np.array([*size, max(rng.uniform(0.35, 0.6) * size.max(), 2.0 - floor)])
+        extents = np.array([*size, max(rng.uniform(0.35, 0.6) * size.max(), _MIN_CEILING - floor)])
         material = b.material(random_material(rng, tile_scale=_SCENERY_TILE, glossy=False))
         for name, mesh in geometry.room_faces(extents):
             mesh.apply_translation((center[0], center[1], floor))
@@ -170,7 +173,8 @@ def _enclosure(b: _Builder, rng: np.random.Generator, floor: float, lo: np.ndarr
             along = rng.uniform(-0.45, 0.45)
             spot = np.array([[0.47, along], [-0.47, along], [along, 0.47], [along, -0.47]])[rng.integers(4)]
             b.stand(random_shape(rng), center + spot * size, float(rng.uniform(0.05, 0.15) * size.min()), floor)
-        limit = float(np.min(np.abs(np.concatenate([center - size / 2, center + size / 2]))) * 0.9)
+        # Furniture reaches ~0.2 of the way in from the walls: cameras stay inside 0.7 of the nearest wall.
+        limit = float(np.min(np.abs(np.concatenate([center - size / 2, center + size / 2]))) * 0.7)
         return Enclosure("room", center, size, floor, floor + extents[2], limit)
     radius = float(min(rng.uniform(2.0, 4.0) * span, _MAX_SKY))
     b.add(Shape(geometry.sky_dome(radius), smooth=False, kind="sky"), _identity(), np.zeros(3), 1.0,
@@ -210,7 +214,8 @@ def compose_360(rng: np.random.Generator) -> World:
     _cluster(b, int(rng.integers(1, 6)), 0.0)
     floor = _normalize(b, 1.0)
     enclosure = _enclosure(b, rng, floor, -_REACH, _REACH)
-    return b.world(_scene_lights(rng, enclosure), Stage(np.zeros(3), 1.0, floor, enclosure.limit), np.zeros(3),
+    stage = Stage(np.zeros(3), 1.0, floor, enclosure.limit, ceiling=enclosure.ceiling)
+    return b.world(_scene_lights(rng, enclosure), stage, np.zeros(3),
                    ambient=float(rng.uniform(0.15, 0.4)), layout="360", surroundings=enclosure.kind)
 
 

@@ -69,6 +69,13 @@ def _cameras(frame: Frame, c2w: np.ndarray) -> Cameras:
     return Cameras(K.expand(len(c2w), 3, 3).clone(), torch.from_numpy(c2w), frame.height, frame.width)
 
 
+def _below_ceiling(stage: Stage, eyes: np.ndarray) -> np.ndarray:
+    """Camera centres [N, 3] lowered where needed to stay a little under the stage's ceiling."""
+    eyes = eyes.copy()
+    eyes[:, 2] = np.minimum(eyes[:, 2], stage.ceiling - 0.2 * stage.radius)
+    return eyes
+
+
 def _fit_distance(rng: np.random.Generator, frame: Frame, radius: float) -> float:
     """Distance at which a sphere of ``radius`` fills 60-95% of the short side's half field of view."""
     return float(radius / np.sin(rng.uniform(0.6, 0.95) * frame.short_half_fov))
@@ -76,14 +83,14 @@ def _fit_distance(rng: np.random.Generator, frame: Frame, radius: float) -> floa
 
 def object_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int) -> Cameras:
     """Cameras on a sphere (or the upper hemisphere when there is a ground) looking at the subject."""
-    distance = _fit_distance(rng, frame, stage.radius)
+    distance = min(_fit_distance(rng, frame, stage.radius), stage.limit)
     lowest = -1.0 if stage.ground is None and rng.random() < 0.5 else np.sin(np.radians(rng.uniform(0, 15)))
     z = rng.uniform(lowest, 0.98, views)  # uniform in z = uniform on the sphere's area
     azimuth = rng.uniform(0, 2 * np.pi, views)
     radial = np.sqrt(1 - z ** 2)
     directions = np.stack([radial * np.cos(azimuth), radial * np.sin(azimuth), z], axis=1)
-    jitter = rng.uniform(0.9, 1.1, views)[:, None] if rng.random() < 0.5 else 1.0
-    eyes = stage.center + distance * jitter * directions
+    jitter = rng.uniform(0.9, 1.0, views)[:, None] if rng.random() < 0.5 else 1.0
+    eyes = _below_ceiling(stage, stage.center + distance * jitter * directions)
     targets = stage.center + rng.normal(0, 0.05 * stage.radius, (views, 3))
     return _cameras(frame, look_at(eyes, targets, np.zeros(views)))
 
@@ -97,11 +104,12 @@ def orbit_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int) 
     base_elevation = np.radians(rng.uniform(5, 40))
     loop_offset = np.where(np.arange(views) * loops // views == 1, np.radians(rng.uniform(10, 25)), 0.0)
     elevation = base_elevation + loop_offset + np.radians(rng.normal(0, 3, views))
-    radius = distance * (1 + 0.08 * np.sin(azimuth * rng.integers(1, 4) + rng.uniform(0, 6)))
+    radius = distance * (1 - 0.04 * (1 + np.sin(azimuth * rng.integers(1, 4) + rng.uniform(0, 6))))
     eyes = stage.center + radius[:, None] * np.stack(
         [np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)], axis=1)
     if stage.ground is not None:  # a person holds the phone above the floor
         eyes[:, 2] = np.maximum(eyes[:, 2], stage.ground + 0.3 * stage.radius)
+    eyes = _below_ceiling(stage, eyes)
     targets = stage.center + rng.normal(0, 0.1 * stage.radius, (views, 3))
     return _cameras(frame, look_at(eyes, targets, np.radians(rng.normal(0, 2, views))))
 

@@ -85,7 +85,9 @@ class Stage:
         center: [3] point the cameras look at (object and 360) or the centre of the camera plane (forward).
         radius: bounding radius of the subject around ``center``.
         ground: height of the ground plane, or None when there is none.
-        limit: cameras stay within this distance of ``center`` (inside the room or sky dome).
+        limit: cameras stay within this distance of ``center`` (inside the room or sky dome, clear of the
+            furniture and scenery along its edge).
+        ceiling: cameras stay below this height (a room's ceiling).
         depth: forward layout: distance from the camera plane to the nearest subject geometry.
     """
 
@@ -93,6 +95,7 @@ class Stage:
     radius: float
     ground: float | None = None
     limit: float = np.inf
+    ceiling: float = np.inf
     depth: float = 0.0
 
 
