@@ -23,7 +23,7 @@ from .capture import CaptureOptions
 from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, render_scene
 
 # Bump when a change makes the same seed and options give other pixels.
-GENERATOR_VERSION = "synth-3"
+GENERATOR_VERSION = "synth-4"
 MANIFEST = "manifest.json"
 _TEMP_PREFIX = ".tmp-"
 LayoutChoice = Literal["object", "forward", "360", "mixed"]

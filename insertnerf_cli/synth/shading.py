@@ -90,7 +90,12 @@ def _triplanar(material: Material, local: np.ndarray, weights: np.ndarray, footp
         if len(use) == 0:
             continue
         uv = local[use][:, keep] / material.tile
-        albedo[use] += weights[use, axis, None] * sample(material.texture, uv, footprint[use] / material.tile)
+        color = sample(material.texture, uv, footprint[use] / material.tile)
+        if material.macro is not None:
+            ratio = material.tile / material.macro_tile
+            variation = sample(material.macro, uv * ratio, footprint[use] / material.macro_tile)
+            color *= 1.0 + material.macro_strength * (2.0 * variation - 1.0)
+        albedo[use] += weights[use, axis, None] * color
     return albedo
 
 

@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from .drawing import random_texture, sky_image
 from .geometry import PRIMITIVES, THIN, Shape, deformed
 from .implicit import implicit_shape
-from .textures import Texture, srgb_to_linear
+from .textures import Texture, fbm, srgb_to_linear
 
 Mapping = Literal["triplanar", "sky"]
 LightKind = Literal["directional", "point"]
@@ -32,6 +32,8 @@ class Material:
         metallic: 0 gives white highlights, 1 highlights tinted by the albedo.
         mapping: "triplanar" in object space, or "sky": by direction, unlit (emissive).
         name: short description for the scene record.
+        macro: optional grey variation [0, 1] multiplied over large surfaces, with its own tile size
+            ``macro_tile`` and ``macro_strength``: breaks the visible repetition of a tiled floor or wall.
     """
 
     texture: Texture
@@ -41,6 +43,9 @@ class Material:
     metallic: float = 0.0
     mapping: Mapping = "triplanar"
     name: str = ""
+    macro: Texture | None = None
+    macro_tile: float = 1.0
+    macro_strength: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -132,6 +137,10 @@ def random_shape(rng: np.random.Generator) -> Shape:
     return THIN[str(rng.choice(list(THIN)))](rng)
 
 
+# Pixels per side of the macro-variation texture: it only carries low frequencies.
+_MACRO_SIZE = 64
+
+
 def random_material(rng: np.random.Generator, tile_scale: float = 1.0, glossy: bool = True) -> Material:
     """A textured material with a random specular lobe; ``tile_scale`` scales the texture's world size.
 
@@ -141,10 +150,16 @@ def random_material(rng: np.random.Generator, tile_scale: float = 1.0, glossy: b
     texture, name = random_texture(rng)
     shiny = rng.random() < 0.5
     specular = float(rng.uniform(0.05, 0.6)) if shiny else float(rng.uniform(0.0, 0.05))
-    return Material(texture=texture, tile=tile_scale * float(np.exp(rng.uniform(np.log(0.15), np.log(1.5)))),
-                    specular=specular if glossy else min(specular, 0.03),
-                    shininess=float(np.exp(rng.uniform(np.log(5), np.log(300)))),
-                    metallic=float(rng.random() < 0.2), name=name)
+    tile = tile_scale * float(np.exp(rng.uniform(np.log(0.15), np.log(1.5))))
+    material = Material(texture=texture, tile=tile, specular=specular if glossy else min(specular, 0.03),
+                        shininess=float(np.exp(rng.uniform(np.log(5), np.log(300)))),
+                        metallic=float(rng.random() < 0.2), name=name)
+    if glossy:
+        return material
+    # A non-integer ratio of tile sizes, so the two patterns never line up again.
+    macro = Texture.from_image(np.repeat(fbm(rng, _MACRO_SIZE)[..., None], 3, axis=2))
+    return replace(material, macro=macro, macro_tile=tile * float(rng.uniform(4.3, 9.7)),
+                   macro_strength=float(rng.uniform(0.2, 0.6)))
 
 
 def sky_material(rng: np.random.Generator) -> Material:
