@@ -51,7 +51,7 @@ class InsertNeRF(nn.Module):
     def forward(self, encoded: EncodedViews, rays: Rays, train: bool) -> RenderOutput:
         """Render R rays: stratified coarse pass, then an importance-sampled fine pass."""
         cfg = self.config
-        rays = rays.to(dtype=self.background.dtype)
+        rays = rays.to(device=self.background.device, dtype=self.background.dtype)
         coarse_samples = stratified_samples(rays, cfg.samples_coarse, jitter=train,
                                             in_disparity=cfg.sample_in_disparity)
         coarse, dynamic_coarse = self.render_pass(self.coarse_head, encoded, rays, coarse_samples)
