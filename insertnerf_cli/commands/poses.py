@@ -5,7 +5,6 @@ from pathlib import Path
 
 import click
 
-from ..colmap import PosesOptions, estimate_poses
 from .common import overwrite_option, user_errors
 
 
@@ -39,6 +38,9 @@ def poses(images_dir: Path, out_dir: Path | None, matcher: str, max_image_size: 
     Example:
       insertnerf poses photos/ --out scene/
     """
+    # pycolmap loads lazily: importing it installs glog's signal handlers in every process (synth workers too).
+    from ..colmap import PosesOptions, estimate_poses
+
     options = PosesOptions(matcher=matcher, max_image_size=max_image_size, overwrite=overwrite, verbose=verbose,
                            allow_inconsistent=allow_inconsistent)
     result = estimate_poses(images_dir, out_dir or default_out(images_dir), options,

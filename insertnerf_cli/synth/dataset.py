@@ -171,8 +171,9 @@ def render_into(out: Path, spec: SceneSpec) -> RenderedScene:
         try:
             result = render_scene(spec, temp)
         except Exception as err:  # a generator bug: name the scene so it can be rebuilt and reported
-            raise RuntimeError(f"{spec.name} (seed {spec.seed}, layout {spec.layout}) failed: "
-                               f"{type(err).__name__}: {err}") from err
+            raise UserError(f"synth: {spec.name} (seed {spec.seed}, layout {spec.layout}) failed with "
+                            f"{type(err).__name__}: {err}. This is a generator bug; please report it with the "
+                            f"dataset's manifest.json (finished scenes are kept, re-running resumes).") from err
         os.replace(temp, out / spec.name)
         return result
     finally:
