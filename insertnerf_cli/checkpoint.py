@@ -165,3 +165,14 @@ def _one_line(err: BaseException) -> str:
     lines = str(err).strip().splitlines()
     first = lines[0] if lines else type(err).__name__
     return first[:160]
+
+
+def export_weights(source: str | Path, destination: str | Path) -> Path:
+    """Write the weights and config of a training checkpoint without its optimizer and RNG state.
+
+    This is how the bundled ``weights/insertnerf.pt`` is made from a run's checkpoint: a third of the size,
+    and nothing in it but what ``load_model`` needs.
+    """
+    checkpoint = read_checkpoint(source)
+    model = build_model(checkpoint, torch.device("cpu"))
+    return save_checkpoint(destination, model, checkpoint.model_config)

@@ -7,8 +7,8 @@ import pickle
 import pytest
 import torch
 
-from insertnerf_cli.checkpoint import (CHECKPOINT_VERSION, TrainState, bundled_checkpoint, load_model,
-                                       read_checkpoint, save_checkpoint)
+from insertnerf_cli.checkpoint import (CHECKPOINT_VERSION, TrainState, bundled_checkpoint, export_weights,
+                                       load_model, read_checkpoint, save_checkpoint)
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import InsertNeRF
 from test_train import TINY
@@ -123,3 +123,16 @@ def test_missing_checkpoint_files_are_one_line_errors(tmp_path):
     else:
         model, config = load_model(path, torch.device("cpu"))  # the shipped weights must load
         assert isinstance(model, InsertNeRF)
+
+
+def test_export_keeps_weights_and_config_and_drops_training_state(tmp_path):
+    model = tiny_model()
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    state = TrainState(step=3, elapsed_s=1.0, optimizer=optimizer.state_dict(), rng={}, train_config="{}")
+    source = save_checkpoint(tmp_path / "last.pt", model, TINY, state)
+    exported = export_weights(source, tmp_path / "weights.pt")
+    copy = read_checkpoint(exported)
+    assert copy.train_state is None and copy.model_config == TINY
+    for name, tensor in model.state_dict().items():
+        assert torch.equal(copy.model_state[name], tensor), name
+    assert exported.stat().st_size < source.stat().st_size
