@@ -91,6 +91,25 @@ def test_render_image_is_chunk_invariant_and_matches_the_forward():
     assert not big.rgb.requires_grad
 
 
+def test_render_image_on_worker_threads_matches_one_thread_and_restores_the_thread_count():
+    torch.manual_seed(0)
+    model = InsertNeRF(TINY).eval()
+    camera = orbit_cameras(1, 8, phase=0.4)
+    with torch.no_grad():
+        encoded = model.encode(sphere_views(3, 16))
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        serial = render_image(model, encoded, camera, NEAR, FAR, chunk=5)
+        torch.set_num_threads(2)
+        threaded = render_image(model, encoded, camera, NEAR, FAR, chunk=5)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    torch.testing.assert_close(threaded.rgb, serial.rgb)
+    torch.testing.assert_close(threaded.depth, serial.depth)
+
+
 def test_stratified_samples_use_their_bins_for_compositing():
     """Bins evenly split [near, far]: a uniform density integrates to 1 - exp(-sigma * length)."""
     rays = rays_for_image(orbit_cameras(1, 4), torch.tensor([NEAR]), torch.tensor([FAR]))
