@@ -42,6 +42,7 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> None:
 
 
 def _umask() -> int:
+    """The process umask (reading it means setting it; it is restored at once)."""
     mask = os.umask(0)
     os.umask(mask)
     return mask
