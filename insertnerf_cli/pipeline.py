@@ -53,7 +53,7 @@ class RenderConfig:
         resolution: long side of the frames in pixels (None = the images' size).
         views: reference views per frame.
         checkpoint: generator weights (None = the bundled pretrained ones).
-        device: torch device name ("cpu", "cuda"), resolved by the command.
+        device: torch device name (cpu or cuda), resolved once by the command.
         chunk: rays per network call (bounds memory).
         overwrite: replace the outputs of a different earlier run in the output folder.
     """

@@ -51,10 +51,3 @@ def sphere_views(n: int, size: int, phase: float = 0.0) -> SourceViews:
     return SourceViews(sphere_images(cams), cams)
 
 
-@pytest.fixture(autouse=False)
-def one_thread():
-    """Tiny models on a shared 2-core machine run far faster on one thread than fighting for two."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)

@@ -5,7 +5,6 @@ from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.checkpoint import bundled_checkpoint, load_model
 from insertnerf_cli.model import SourceViews
 from insertnerf_cli.render import render_image
-from model_fixtures import one_thread  # noqa: F401  (fixture)
 
 MAX_BYTES = 25 * 2**20
 

@@ -6,7 +6,6 @@ import json
 import imageio.v3 as iio
 import numpy as np
 import pytest
-from model_fixtures import one_thread  # noqa: F401  (fixture)
 from test_render_cli import make_checkpoint, make_scene, ring_cameras, run
 
 from insertnerf_cli.pipeline import held_out_views

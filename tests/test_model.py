@@ -17,7 +17,7 @@ from insertnerf_cli.model.filter import SamplingFilter
 from insertnerf_cli.model.hypernet import AppearanceHyper, GeometryHyperLayer, count_parameters
 from insertnerf_cli.model.projection import project_samples
 from insertnerf_cli.rays import rays_for_image
-from model_fixtures import FAR, NEAR, TINY, one_thread, orbit_cameras, sphere_views  # noqa: F401
+from model_fixtures import FAR, NEAR, TINY, orbit_cameras, sphere_views  # noqa: F401
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -10,7 +10,7 @@ import torch
 from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.rays import rays_for_image
 from insertnerf_cli.render import psnr, render_image
-from model_fixtures import FAR, NEAR, TINY, one_thread, orbit_cameras, sphere_images  # noqa: F401
+from model_fixtures import FAR, NEAR, TINY, orbit_cameras, sphere_images  # noqa: F401
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
-from model_fixtures import one_thread  # noqa: F401  (fixture)
 
 from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.checkpoint import save_checkpoint
