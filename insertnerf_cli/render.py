@@ -98,7 +98,7 @@ def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, 
 
     def render_chunk(start: int) -> Composite:
         with torch.inference_mode():  # thread-local: entered in the worker that runs the chunk
-            return model(encoded, rays[start:start + chunk], train=False).fine
+            return model.render(encoded, rays[start:start + chunk])
 
     with _chunk_workers(param.device) as workers:
         with ThreadPoolExecutor(workers) as pool:

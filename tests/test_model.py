@@ -129,6 +129,25 @@ def test_full_model_forward_losses_and_finite_gradients_everywhere(conditioning)
     assert all(torch.isfinite(p.grad).all() for p in model.parameters())
 
 
+@pytest.mark.parametrize("conditioning", ["hyper", "concat"])
+def test_inference_render_matches_the_fine_pass_of_forward(conditioning):
+    """model.render skips the coarse appearance branch; what it returns must not change."""
+    torch.manual_seed(1)
+    model = InsertNeRF(dataclasses.replace(TINY, conditioning=conditioning)).eval()
+    with torch.no_grad():
+        for p in model.parameters():  # away from the initialisation, so that every branch matters
+            p.add_(0.3 * torch.randn_like(p))
+    views = sphere_views(3, 24)
+    rays = rays_for_image(orbit_cameras(1, 24, phase=0.5), torch.tensor([NEAR]), torch.tensor([FAR]))[:50]
+    with torch.inference_mode():
+        encoded = model.encode(views)
+        full = model(encoded, rays, train=False).fine
+        fast = model.render(encoded, rays)
+    assert full.rgb.std() > 1e-3
+    for name in ("rgb", "depth", "opacity", "weights", "t"):
+        torch.testing.assert_close(getattr(fast, name), getattr(full, name), rtol=0, atol=1e-6)
+
+
 def test_eval_encode_has_no_reconstruction_and_separate_fine_head_allows_other_counts():
     cfg = dataclasses.replace(TINY, separate_fine_head=True, samples_fine=24)
     model = InsertNeRF(cfg).eval()

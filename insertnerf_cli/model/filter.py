@@ -31,5 +31,5 @@ class SamplingFilter(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         rays = x.shape[0]
         nodes = torch.bmm(self.to_nodes.expand(rays, -1, -1), x)  # [R, N, D]
-        mixed = x - torch.bmm(self.from_nodes.expand(rays, -1, -1), nodes)  # (I - U V) F  [R, S, D]
+        mixed = torch.baddbmm(x, self.from_nodes.expand(rays, -1, -1), nodes, alpha=-1.0)  # (I - U V) F  [R, S, D]
         return x + F.relu(self.features(mixed))

@@ -27,9 +27,10 @@ class RayWeights(nn.Module):
 
     def forward(self, cond: Tensor) -> Tensor:
         rows = F.relu(self.features(cond))  # [R, S, I]
-        # W[r] = rows[r]^T mix^T: [I, S] @ [S, O] per ray, as one bmm (einsum copies the operands here)
-        weights = torch.bmm(rows.transpose(1, 2), self.mix.weight.T.expand(rows.shape[0], -1, -1))  # [R, I, O]
-        return (weights + self.mix.bias) * self.gain
+        # W[r] = gain (rows[r]^T mix^T + b): [I, S] @ [S, O] per ray, bias and gain folded into one baddbmm
+        # (einsum copies the operands here)
+        return torch.baddbmm(self.mix.bias, rows.transpose(1, 2), self.mix.weight.T.expand(rows.shape[0], -1, -1),
+                             beta=self.gain, alpha=self.gain)  # [R, I, O]
 
 
 class GeometryHyperLayer(nn.Module):
@@ -47,8 +48,8 @@ class GeometryHyperLayer(nn.Module):
     def forward(self, x: Tensor, cond: Tensor) -> Tensor:
         h = self.filter(cond)  # [R, S, D]
         bias, freq, shift = self.film(h).chunk(3, dim=-1)  # [R, S, O] each
-        y = torch.bmm(x, self.weights(h)) + bias  # [R, S, O]
-        return (1.0 + freq) * y + shift
+        y = torch.baddbmm(bias, x, self.weights(h))  # [R, S, O]
+        return torch.addcmul(y + shift, freq, y)  # (1 + freq) y + shift, in two passes instead of three
 
 
 class AppearanceHyper(nn.Module):

@@ -13,7 +13,7 @@ from .encoder import UNetEncoder, pad_to_stride
 from .losses import compute_losses
 from .nerf import NeRFHead
 from .projection import project_samples, projection_matrices
-from .types import EncodedViews, LossTerms, RenderOutput, SourceViews
+from .types import EncodedViews, LossTerms, RenderOutput, SampleFeatures, SourceViews
 
 
 class InsertNeRF(nn.Module):
@@ -60,27 +60,54 @@ class InsertNeRF(nn.Module):
         fine, dynamic_fine = self.render_pass(self.fine_head, encoded, rays, fine_samples)
         return RenderOutput(coarse=coarse, fine=fine, dynamic_coarse=dynamic_coarse, dynamic_fine=dynamic_fine)
 
+    def render(self, encoded: EncodedViews, rays: Rays) -> Composite:
+        """Inference: the fine composite of R rays, the same as ``forward(..., train=False).fine``.
+
+        The coarse pass only places the fine samples, so it stops at the densities: no appearance branch and
+        none of the reference-colour composites that training supervises.
+        """
+        cfg = self.config
+        rays = rays.to(device=self.background.device, dtype=self.background.dtype)
+        coarse_samples = stratified_samples(rays, cfg.samples_coarse, jitter=False,
+                                            in_disparity=cfg.sample_in_disparity)
+        coarse = self.observe(encoded, rays, coarse_samples)
+        _, density = self.coarse_head.geometry(coarse.points, coarse.conds)
+        weights = composite_weights(density, coarse_samples.edges, rays.directions.norm(dim=-1))
+        fine_samples = importance_samples(coarse_samples, weights, cfg.samples_fine, jitter=False,
+                                          near=rays.near, far=rays.far)
+        fine = self.observe(encoded, rays, fine_samples)
+        return self.shade(self.fine_head, fine, rays, fine_samples, fine.reference_colour())
+
     def render_pass(self, head: NeRFHead, encoded: EncodedViews, rays: Rays,
                     samples: RaySamples) -> tuple[Composite, Tensor]:
         """sample -> project -> aggregate -> hypernet + nerf -> composite, for one set of samples.
 
         Returns the composite and the dynamic-weight colour [R, 3] composited with the detached weights.
         """
+        seen = self.observe(encoded, rays, samples)
+        reference = seen.reference_colour()  # [R, S, 3]
+        main = self.shade(head, seen, rays, samples, reference)
+        return main, composite(main.weights.detach(), reference, samples.t, self.background).rgb
+
+    def observe(self, encoded: EncodedViews, rays: Rays, samples: RaySamples) -> SampleFeatures:
+        """Project the samples into every reference view and aggregate what the views see, per scale."""
         points = samples.points(rays)  # [R, S, 3]
         rays_n, samples_n = points.shape[:2]
         seen = project_samples(encoded, points, rays.directions)
         inputs = [*seen.features[:-1], torch.cat([seen.features[-1], seen.colours], dim=1)]  # [V, C_l, P]
         descriptors, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in zip(self.aggregators, inputs)))
-        conds = [d.reshape(rays_n, samples_n, -1) for d in descriptors]  # [R, S, D_l]
-        dynamic = torch.stack(dynamics).mean(dim=0)  # [V, 1, P], averaged over scales
-        reference = (dynamic * seen.colours).sum(dim=0).T.reshape(rays_n, samples_n, 3)  # [R, S, 3]
-        field = head(points, rays.directions, conds)
+        return SampleFeatures(points=points, conds=tuple(d.reshape(rays_n, samples_n, -1) for d in descriptors),
+                              dynamic=torch.stack(dynamics).mean(dim=0), colours=seen.colours)
+
+    def shade(self, head: NeRFHead, seen: SampleFeatures, rays: Rays, samples: RaySamples,
+              reference: Tensor) -> Composite:
+        """The conditioned field at the samples, blended with the reference colour [R, S, 3], composited."""
+        field = head(seen.points, rays.directions, seen.conds)
         colour = field.colour
         if self.config.blend_reference_colour:
             colour = field.blend * colour + (1.0 - field.blend) * reference  # [R, S, 3]
         weights = composite_weights(field.density, samples.edges, rays.directions.norm(dim=-1))
-        main = composite(weights, colour, samples.t, self.background)
-        return main, composite(weights.detach(), reference, samples.t, self.background).rgb
+        return composite(weights, colour, samples.t, self.background)
 
     def losses(self, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews) -> LossTerms:
         """Colour MSE on both passes + weighted backbone and dynamic-weight losses (see losses.py)."""

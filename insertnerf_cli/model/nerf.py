@@ -87,14 +87,23 @@ class NeRFHead(nn.Module):
 
     def forward(self, points: Tensor, directions: Tensor, conds: Sequence[Tensor]) -> FieldOutput:
         """points [R, S, 3] world, directions [R, 3], conds per scale [R, S, D_l] -> FieldOutput."""
+        h, density = self.geometry(points, conds)
+        colour, blend = self.appearance_of(h, directions, conds[-1])
+        return FieldOutput(density=density, colour=colour, blend=blend)
+
+    def geometry(self, points: Tensor, conds: Sequence[Tensor]) -> tuple[Tensor, Tensor]:
+        """The density MLP alone: (geometry feature [R, S, W], density [R, S])."""
         h = self.pos_enc(points * self.cfg.coord_scale)  # [R, S, P]
         for scale, conditioner, original in zip(self.layer_scale, self.conditioners, self.originals):
             h = original(conditioner(h, conds[scale]))  # [R, S, W]
-        density = self._activate(self.density(h)[..., 0])  # [R, S]
+        return h, self._activate(self.density(h)[..., 0])
+
+    def appearance_of(self, h: Tensor, directions: Tensor, cond: Tensor) -> tuple[Tensor, Tensor]:
+        """Colour [R, S, 3] and blend [R, S, 1] from the geometry feature, the view direction and the finest cond."""
         view = self.dir_enc(F.normalize(directions, dim=-1))[:, None].expand(-1, h.shape[1], -1)  # [R, S, E]
         q = F.relu(self.appearance_in(torch.cat([h, view], dim=-1)))  # [R, S, A]
-        out = self.colour(self.appearance(q, conds[-1]))  # [R, S, 4]
-        return FieldOutput(density=density, colour=torch.sigmoid(out[..., :3]), blend=torch.sigmoid(out[..., 3:]))
+        out = self.colour(self.appearance(q, cond))  # [R, S, 4]
+        return torch.sigmoid(out[..., :3]), torch.sigmoid(out[..., 3:])
 
     def _activate(self, raw: Tensor) -> Tensor:
         raw = raw + self.cfg.density_bias

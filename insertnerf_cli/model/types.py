@@ -69,6 +69,27 @@ class EncodedViews:
 
 
 @dataclass(frozen=True)
+class SampleFeatures:
+    """What the reference views say about the R x S samples of one pass, aggregated per scale.
+
+    Attributes:
+        points: [R, S, 3] world positions.
+        conds: per scale, coarse to fine, [R, S, D_l] aggregated descriptors (the HyperNet conditions).
+        dynamic: [V, 1, R * S] dynamic view weights, averaged over the scales.
+        colours: [V, 3, R * S] reference colours at the samples' projections (zero where a view cannot see).
+    """
+
+    points: Tensor  # [R, S, 3]
+    conds: tuple[Tensor, ...]  # [R, S, D_l] each
+    dynamic: Tensor  # [V, 1, R * S]
+    colours: Tensor  # [V, 3, R * S]
+
+    def reference_colour(self) -> Tensor:
+        """[R, S, 3] the reference colours blended by the dynamic weights."""
+        return (self.dynamic * self.colours).sum(dim=0).T.reshape(*self.points.shape[:2], 3)
+
+
+@dataclass(frozen=True)
 class RenderOutput:
     """Both passes of the generator over R rays.
 

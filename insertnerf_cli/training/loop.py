@@ -228,7 +228,7 @@ def validate(s: Session) -> float | None:
                 errors = []
                 for start in range(0, len(batch.rays), s.config.rays):
                     chunk = slice(start, start + s.config.rays)
-                    rgb = s.model(encoded, batch.rays[chunk], train=False).fine.rgb  # [chunk, 3]
+                    rgb = s.model.render(encoded, batch.rays[chunk]).rgb  # [chunk, 3]
                     errors.append(((rgb - batch.target_rgb[chunk]) ** 2).sum())
                 mse = float(torch.stack(errors).sum()) / batch.target_rgb.numel()
                 psnrs.append(-10.0 * math.log10(max(mse, 1e-12)))
