@@ -68,7 +68,8 @@ def quality(args: argparse.Namespace, work: Path) -> None:
         print(f"{scene.name}: PSNR {data_json['psnr']:.2f} dB, SSIM {data_json['ssim']:.4f} "
               f"({len(data_json['views'])} held-out views, {wall:.0f} s)", flush=True)
     print(f"mean over {len(psnrs)} fresh object scenes ({args.resolution}x{args.resolution}, {args.views} "
-          f"nearest of {args.capture_views} reference views): PSNR {sum(psnrs) / len(psnrs):.2f} dB, SSIM {sum(ssims) / len(ssims):.4f}")
+          f"nearest of {args.capture_views} reference views): PSNR {sum(psnrs) / len(psnrs):.2f} dB, "
+          f"SSIM {sum(ssims) / len(ssims):.4f}")
 
 
 def speed(args: argparse.Namespace, work: Path) -> None:

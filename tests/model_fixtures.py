@@ -48,5 +48,3 @@ def sphere_images(cameras: Cameras, background: float = 1.0) -> torch.Tensor:
 def sphere_views(n: int, size: int, phase: float = 0.0) -> SourceViews:
     cams = orbit_cameras(n, size, phase)
     return SourceViews(sphere_images(cams), cams)
-
-
