@@ -1,7 +1,6 @@
-"""Volume compositing (density -> alpha -> weights -> rgb, depth, opacity) and the chunked whole-image renderer."""
+"""The chunked whole-image renderer: one frame of a camera through the model (compositing lives in compositing.py)."""
 from __future__ import annotations
 
-import math
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -10,30 +9,12 @@ from typing import TYPE_CHECKING, Iterator
 import torch
 from torch import Tensor
 
-from .cameras import Cameras, check_shape
-from .rays import Rays, rays_for_image
+from .cameras import Cameras
+from .compositing import Composite
+from .rays import rays_for_image
 
 if TYPE_CHECKING:
     from .model import EncodedViews, InsertNeRF
-
-
-@dataclass(frozen=True)
-class Composite:
-    """One volume-rendering pass over R rays of S samples.
-
-    Attributes:
-        rgb: [R, 3] colour composited over the background.
-        depth: [R] expected depth of the visible content, sum(w t) / opacity (stays within [near, far]).
-        opacity: [R] sum of the weights, in [0, 1].
-        weights: [R, S] compositing weights w_k = T_k (1 - exp(-sigma_k delta_k)).
-        t: [R, S] sample depths the weights belong to.
-    """
-
-    rgb: Tensor  # [R, 3]
-    depth: Tensor  # [R]
-    opacity: Tensor  # [R]
-    weights: Tensor  # [R, S]
-    t: Tensor  # [R, S]
 
 
 @dataclass(frozen=True)
@@ -43,33 +24,6 @@ class ImageOutput:
     rgb: Tensor  # [H, W, 3]
     depth: Tensor  # [H, W]
     opacity: Tensor  # [H, W]
-
-
-def composite_weights(density: Tensor, edges: Tensor, ray_scale: Tensor) -> Tensor:
-    """Weights [R, S] from densities [R, S] on bins with ``edges`` [R, S + 1] in t.
-
-    ``ray_scale`` [R] converts a step in t into world distance (|d|, since directions have camera-z = 1), so the
-    density is per world unit whatever the ray's angle. Transmittance is exp(-cumsum) of the optical depth of the
-    bins before each sample, which is stabler than a cumulative product of (1 - alpha).
-    """
-    check_shape("edges", edges, (density.shape[0], density.shape[1] + 1))
-    delta = (edges[:, 1:] - edges[:, :-1]) * ray_scale[:, None]  # [R, S]
-    optical = density * delta  # [R, S]
-    alpha = 1.0 - torch.exp(-optical)
-    before = torch.cumsum(optical, dim=-1) - optical  # exclusive cumsum [R, S]
-    return alpha * torch.exp(-before)
-
-
-def composite(weights: Tensor, colour: Tensor, t: Tensor, background: Tensor) -> Composite:
-    """Composite per-sample colours [R, S, 3] with weights [R, S] over ``background`` [3] (or [R, 3])."""
-    opacity = weights.sum(dim=-1)  # [R]
-    rgb = torch.einsum("rs,rsc->rc", weights, colour) + (1.0 - opacity)[:, None] * background  # [R, 3]
-    # Normalising by the opacity gives the depth of what is seen; an empty ray falls back to its mean sample.
-    depth = (weights * t).sum(dim=-1) / opacity.clamp(min=1e-6)
-    empty = opacity < 1e-6
-    if bool(empty.any()):
-        depth = torch.where(empty, t.mean(dim=-1), depth)
-    return Composite(rgb=rgb, depth=depth, opacity=opacity, weights=weights, t=t)
 
 
 def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, near: float | Tensor,
@@ -125,8 +79,3 @@ def _chunk_workers(device: torch.device) -> Iterator[int]:
         yield threads
     finally:
         torch.set_num_threads(threads)
-
-
-def psnr(mse: Tensor) -> Tensor:
-    """Peak signal-to-noise ratio in dB of colours in [0, 1] from their mean squared error."""
-    return -10.0 * torch.log10(mse.clamp(min=1e-10)) if torch.is_tensor(mse) else -10.0 * math.log10(mse)

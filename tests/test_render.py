@@ -6,7 +6,8 @@ import torch
 
 from insertnerf_cli.model import InsertNeRF
 from insertnerf_cli.rays import rays_for_image
-from insertnerf_cli.render import composite, composite_weights, render_image
+from insertnerf_cli.compositing import composite, composite_weights
+from insertnerf_cli.render import render_image
 from insertnerf_cli.sampling import stratified_samples
 from model_fixtures import FAR, NEAR, TINY, orbit_cameras, sphere_views  # noqa: F401
 

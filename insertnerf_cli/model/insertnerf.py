@@ -6,7 +6,7 @@ from torch import Tensor, nn
 
 from ..config import ModelConfig
 from ..rays import Rays
-from ..render import Composite, composite, composite_weights
+from ..compositing import Composite, composite, composite_weights
 from ..sampling import RaySamples, importance_samples, stratified_samples
 from .aggregate import ScaleAggregator
 from .encoder import UNetEncoder, pad_to_stride

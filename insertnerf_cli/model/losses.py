@@ -8,7 +8,7 @@ from torch import Tensor
 
 from ..cameras import check_shape
 from ..config import ModelConfig
-from ..render import psnr
+from ..compositing import psnr
 from .types import EncodedViews, LossTerms, RenderOutput
 
 

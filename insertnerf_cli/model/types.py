@@ -7,7 +7,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Cameras, check_shape
-from ..render import Composite
+from ..compositing import Composite
 
 
 @dataclass(frozen=True)
