@@ -96,5 +96,5 @@ def read_colmap(root: Path, images: str, background: tuple[float, float, float])
     declared = Cameras(K, c2w, sizes[0][0], sizes[0][1])  # projection only needs K and poses
     views = ReadViews(root=root, paths=paths, K=K, c2w=c2w, format="colmap", sizes=sizes,
                       depths=_observed_depths(rec, image_ids, declared),
-                      distortion=dists if any(d is not None for d in dists) else None)
+                      distortion=dists if any(d is not None for d in dists) else None, source=model_dir)
     return assemble(views, background)
