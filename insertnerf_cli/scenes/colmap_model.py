@@ -76,7 +76,8 @@ def read_colmap(root: Path, images: str, background: tuple[float, float, float])
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as err:  # noqa: BLE001 - pycolmap raises plain RuntimeError/ValueError on bad files
-        raise SceneError(f"cannot read the COLMAP model in {model_dir}: {err}") from None
+        raise SceneError(f"cannot read the COLMAP model in {model_dir}: {str(err).strip()}; re-export the model "
+                         "(or run `insertnerf poses` on the images)") from None
     # One pass over the images: each rec.images[i] look-up costs a walk over that image's keypoints.
     registered = sorted(((im.name, i, im) for i, im in rec.images.items() if im.has_pose), key=lambda x: x[0])
     if not registered:

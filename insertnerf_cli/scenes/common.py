@@ -24,15 +24,16 @@ ASPECT_TOLERANCE_PX = 1.0
 _NAMES_SHOWN = 3
 
 
-def safe_path(root: Path, relative: str | os.PathLike, what: str = "path") -> Path:
-    """``root / relative`` normalised, refused (SceneError) when it lands outside ``root``.
+def safe_path(root: Path, relative: str | os.PathLike, what: str = "path", source: Path | None = None) -> Path:
+    """``root / relative`` normalised, refused (SceneError) when it lands outside ``root``; messages name
+    ``source`` (the file the path was read from) when given, else ``root``.
 
     Absolute paths and ``..`` that climb out are refused. The check is on the path as written, not on
     symbolic links, so a user may still link a big ``images/`` folder into a scene.
     """
     candidate = Path(os.path.normpath(root / relative))
     if not candidate.is_relative_to(os.path.normpath(root)):
-        raise SceneError(f"{root}: {what} {str(relative)!r} points outside the scene folder; "
+        raise SceneError(f"{source or root}: {what} {str(relative)!r} points outside the scene folder {root}; "
                          "scene files may only refer to files inside their folder")
     return candidate
 

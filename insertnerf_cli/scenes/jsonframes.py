@@ -91,7 +91,8 @@ class _Keys:
 def _image_path(root: Path, keys: _Keys, default_ext: str | None) -> Path:
     if "file_path" not in keys.frame:
         raise SceneError(f"{keys.source}: frames[{keys.index}] has no 'file_path'")
-    path = safe_path(root, text(keys.frame.get("file_path"), keys.field("file_path"), keys.source), "file_path")
+    field = keys.field("file_path")
+    path = safe_path(root, text(keys.frame.get("file_path"), field, keys.source), field, keys.source)
     if default_ext and not path.suffix and not path.is_file():
         path = path.with_suffix(default_ext)  # NeRF-Synthetic writes './train/r_0' for './train/r_0.png'
     return path
@@ -166,8 +167,8 @@ def read_frames(root: Path, sources: list[tuple[Path, dict[str, Any]]], default_
             near, far = keys.number("near"), keys.number("far")
             bounds.append(None if near is None or far is None else (near, far))
             depth = frame.get("depth_file_path")
-            depths.append(None if depth is None else safe_path(root, text(depth, keys.field("depth_file_path"),
-                                                                          source), "depth_file_path"))
+            field = keys.field("depth_file_path")
+            depths.append(None if depth is None else safe_path(root, text(depth, field, source), field, source))
             dists.append(_distortion(keys))
     if not paths:
         raise SceneError(f"{names_list([s for s, _ in sources])}: no frames")

@@ -42,7 +42,7 @@ def _ply_depths(root: Path, meta: dict[str, Any], cameras: Cameras, A_inv: Tenso
     """Per-view depths of the points in ``ply_file_path`` (ns-process-data's sparse_pc.ply), None without one."""
     if "ply_file_path" not in meta:
         return None
-    path = safe_path(root, text(meta["ply_file_path"], "ply_file_path", source), "ply_file_path")
+    path = safe_path(root, text(meta["ply_file_path"], "ply_file_path", source), "ply_file_path", source)
     try:
         import trimesh
 
@@ -62,7 +62,7 @@ def _splits(root: Path, meta: dict[str, Any], paths: list[Path], source: Path) -
         if listed is None:
             continue
         field = f"{name}_filenames"
-        wanted = [safe_path(root, text(f, f"{field}[{i}]", source), field)
+        wanted = [safe_path(root, text(f, f"{field}[{i}]", source), f"{field}[{i}]", source)
                   for i, f in enumerate(listing(listed, field, source))]
         unknown = [str(p.name) for p in wanted if p not in index]
         if unknown:
