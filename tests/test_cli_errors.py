@@ -56,7 +56,8 @@ def test_render_fps_must_be_finite_and_positive(tmp_path: Path, scene: Path, val
     (["--minutes", "nan"], "minutes must be a finite number or null"),
     (["--minutes", "0"], "--minutes must be positive"),
     (["--steps", "0"], "steps=0"),
-    (["--seed", "-1"], "seed=-1"),
+    (["--seed", "-1"], "--seed must be between 0 and"),
+    (["--seed", str(2 ** 64)], "--seed must be between 0 and"),
     (["--views", "0"], "num_views=0"),
 ])
 def test_bad_train_options_are_one_line(tmp_path: Path, scene: Path, flags: list[str], expected: str) -> None:

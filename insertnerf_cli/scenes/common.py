@@ -22,6 +22,9 @@ from .images import image_size
 ASPECT_TOLERANCE_PX = 1.0
 # How many missing files a message names before it says "and N more".
 _NAMES_SHOWN = 3
+# Values beyond these come from broken files, and break the maths after them (K inversion, normalisation):
+MIN_FOCAL_PX = 1e-2  # a focal length of 0.01 pixels is a field of view of nearly 180 degrees
+MAX_COORD = 1e12  # world units: camera positions and far bounds (squares stay far from float64 overflow)
 
 
 def safe_path(root: Path, relative: str | os.PathLike, what: str = "path", source: Path | None = None) -> Path:
@@ -150,32 +153,33 @@ def check_views(views: ReadViews) -> None:
                              f"height must be positive; {fix}")
     K, c2w = views.K.to(torch.float64), views.c2w.to(torch.float64)
     focal = torch.stack([K[:, 0, 0], K[:, 1, 1]], dim=-1)  # [N, 2]
-    i = _first_bad(torch.isfinite(K).all(dim=(1, 2)) & (focal > 0).all(dim=-1))
+    i = _first_bad(torch.isfinite(K).all(dim=(1, 2)) & (focal >= MIN_FOCAL_PX).all(dim=-1))
     if i is not None:
         raise SceneError(f"{where}: the camera of {_view_name(views, i)} has focal length fx={float(focal[i, 0]):g}, "
                          f"fy={float(focal[i, 1]):g} and principal point cx={float(K[i, 0, 2]):g}, "
-                         f"cy={float(K[i, 1, 2]):g}; focal lengths must be positive and all finite; {fix}")
+                         f"cy={float(K[i, 1, 2]):g}; focal lengths must be at least {MIN_FOCAL_PX:g} pixels and "
+                         f"all values finite; {fix}")
     rot = c2w[:, :3, :3]
     bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
-    finite = torch.isfinite(c2w).all(dim=(1, 2))
+    finite = torch.isfinite(c2w).all(dim=(1, 2)) & (c2w[:, :3, 3].abs() <= MAX_COORD).all(dim=-1)
     rot = torch.where(finite[:, None, None], rot, torch.eye(3, dtype=torch.float64))  # no NaN into det()
     rigid = ((rot.transpose(1, 2) @ rot - torch.eye(3, dtype=torch.float64)).abs().amax(dim=(1, 2)) <= 1e-4) \
         & (torch.det(rot) > 0) & (c2w[:, 3] == bottom).all(dim=-1)
     i = _first_bad(finite & rigid)
     if i is not None:
-        what = "contains NaN or infinity" if not finite[i] else \
+        what = f"contains NaN, infinity or a coordinate beyond {MAX_COORD:g}" if not finite[i] else \
             "is not a rigid camera pose (its rotation is scaled, mirrored or degenerate, or its last row is not 0 0 0 1)"
         raise SceneError(f"{where}: the pose of {_view_name(views, i)} {what}; {fix}")
 
 
 def _check_bounds(views: ReadViews, near: Tensor, far: Tensor, given: bool) -> None:
     """0 < near < far, both finite, for every view."""
-    i = _first_bad(torch.isfinite(near) & torch.isfinite(far) & (near > 0) & (far > near))
+    i = _first_bad(torch.isfinite(near) & (far <= MAX_COORD) & (near > 0) & (far > near))
     if i is None:
         return
     origin = f"{views.source or views.root} gives" if given else f"{views.root}: the scene's geometry gives"
     raise SceneError(f"{origin} near={float(near[i]):g}, far={float(far[i]):g} for {_view_name(views, i)}; "
-                     "they must be finite with 0 < near < far; correct the file or re-export the scene")
+                     f"they must satisfy 0 < near < far <= {MAX_COORD:g}; correct the file or re-export the scene")
 
 
 def assemble(views: ReadViews, background: tuple[float, float, float]) -> Scene:

@@ -11,6 +11,9 @@ from ..config import ModelConfig, check_field_types, config_from_json
 from ..errors import UserError
 
 
+_SEED_LIMIT = 2 ** 63  # torch.manual_seed takes a signed 64-bit integer
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """A training run. The number of source views per step is ``model.num_views``.
@@ -61,10 +64,11 @@ class TrainConfig:
             raise UserError(f"training settings must be positive: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")
         if self.minutes is not None and self.minutes <= 0:
             raise UserError(f"--minutes must be positive, got {self.minutes}")
-        if min(self.lr, self.lr_encoder) <= 0 or self.lr_min < 0 or self.val_scenes < 0 or self.seed < 0:
-            raise UserError(f"learning rates must be positive, lr_min, val_scenes and seed >= 0; got lr={self.lr}, "
-                            f"lr_encoder={self.lr_encoder}, lr_min={self.lr_min}, val_scenes={self.val_scenes}, "
-                            f"seed={self.seed}")
+        if min(self.lr, self.lr_encoder) <= 0 or self.lr_min < 0 or self.val_scenes < 0:
+            raise UserError(f"learning rates must be positive, lr_min and val_scenes >= 0; got lr={self.lr}, "
+                            f"lr_encoder={self.lr_encoder}, lr_min={self.lr_min}, val_scenes={self.val_scenes}")
+        if not 0 <= self.seed < _SEED_LIMIT:
+            raise UserError(f"--seed must be between 0 and {_SEED_LIMIT - 1} (torch's seed range), got {self.seed}")
 
     def learning_rate(self, base: float, step: int) -> float:
         """base * 0.5 ** (step / lr_half_life), not below lr_min (method.md section 9)."""
