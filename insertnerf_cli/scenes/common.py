@@ -164,7 +164,7 @@ def check_views(views: ReadViews) -> None:
     finite = torch.isfinite(c2w).all(dim=(1, 2)) & (c2w[:, :3, 3].abs() <= MAX_COORD).all(dim=-1)
     rot = torch.where(finite[:, None, None], rot, torch.eye(3, dtype=torch.float64))  # no NaN into det()
     rigid = ((rot.transpose(1, 2) @ rot - torch.eye(3, dtype=torch.float64)).abs().amax(dim=(1, 2)) <= 1e-4) \
-        & (torch.det(rot) > 0) & (c2w[:, 3] == bottom).all(dim=-1)
+        & (torch.det(rot) > 0) & ((c2w[:, 3] - bottom).abs().amax(dim=-1) <= 1e-6)
     i = _first_bad(finite & rigid)
     if i is not None:
         what = f"contains NaN, infinity or a coordinate beyond {MAX_COORD:g}" if not finite[i] else \
