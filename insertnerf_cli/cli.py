@@ -1,28 +1,64 @@
-"""The `insertnerf` command group. Each command lives in insertnerf_cli/commands/<name>.py and stays thin:
-check input -> build config -> call one library function -> print a one-line summary."""
+"""The `insertnerf` console entry point (``main``); the command group itself is ``cli`` in group.py.
+
+This module imports only the standard library, so that Ctrl-C during the slow start-up (click, then torch
+behind the commands) is answered like Ctrl-C inside a command: one line and exit code 130. Only the first
+few milliseconds of the interpreter's own start-up lie outside our reach.
+"""
 from __future__ import annotations
 
-import click
+import signal
+import sys
 
-from . import __version__
-from .commands import COMMANDS
+from .errors import INTERRUPTED, INTERRUPTED_EXIT_CODE
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(__version__, prog_name="insertnerf")
-def cli() -> None:
-    """Novel views, depth maps and videos from a folder of photos, with a pretrained generalizable NeRF.
+class held_interrupts:  # noqa: N801 - used like a function: `with held_interrupts():`
+    """Hold Ctrl-C while modules import, then raise it as KeyboardInterrupt once they have.
 
-    \b
-    Typical use:
-      insertnerf poses photos/ --out scene/      # camera poses with COLMAP (pycolmap)
-      insertnerf render scene/ --out views/      # frames, depth maps and a turntable video
+    An interrupt in the middle of importing an extension module (torch, pycolmap: pybind11) aborts the whole
+    process with a C++ error instead of raising KeyboardInterrupt; nothing useful happens in between anyway.
+    (A class rather than contextlib, and no typing import: this module must load in a few milliseconds.)
     """
 
+    def __enter__(self) -> None:
+        self.hits: list[int] = []
+        try:
+            self.previous = signal.signal(signal.SIGINT, lambda signum, frame: self.hits.append(signum))
+        except ValueError:  # not the main thread (e.g. a test runner's worker): signals are not ours to handle
+            self.previous = None
 
-for _command in COMMANDS:
-    cli.add_command(_command)
+    def __exit__(self, *exc_info: object) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+        if self.hits and exc_info[0] is None:
+            raise KeyboardInterrupt
+
+
+def __getattr__(name: str) -> object:
+    """``from insertnerf_cli.cli import cli`` still gives the group (it lives in group.py, see above)."""
+    if name == "cli":
+        from .group import cli
+
+        return cli
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def main() -> None:
-    cli(prog_name="insertnerf")
+    """Run the command line: click's own handling, except that Ctrl-C before a command's body runs (while
+    modules import, while options are parsed) prints the same short line as inside a command, exit 130."""
+    try:
+        with held_interrupts():
+            import click
+
+            from .group import cli
+        try:
+            code = cli.main(prog_name="insertnerf", standalone_mode=False)
+        except click.ClickException as err:
+            err.show()
+            code = err.exit_code
+        except click.Abort:  # click's name for a Ctrl-C outside a command's body
+            raise KeyboardInterrupt from None
+    except KeyboardInterrupt:
+        print(INTERRUPTED, file=sys.stderr)
+        code = INTERRUPTED_EXIT_CODE
+    sys.exit(code if isinstance(code, int) else 0)

@@ -6,6 +6,8 @@ must be exact and must refuse keys it does not know (a checkpoint from another v
 from __future__ import annotations
 
 import dataclasses
+import math
+import types
 import typing
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
@@ -56,19 +58,73 @@ class ModelConfig:
     loss_dynamic_weight: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.conditioning not in ("hyper", "concat"):
-            raise ValueError(f"conditioning must be 'hyper' or 'concat', got {self.conditioning!r}")
-        if self.density_activation not in ("softplus", "relu", "exp"):
-            raise ValueError(f"unknown density_activation {self.density_activation!r}")
+        check_field_types(self)  # also the choices of the Literal fields and finite floats
         if len(self.feature_dims) != 3 or len(self.encoder_widths) != 4:
             raise ValueError("feature_dims needs 3 scales and encoder_widths 4 levels")
+        _at_least(self, 1, "encoder_widths", "feature_dims", "backbone_decoder_width", "aggregate_hidden",
+                  "nerf_width", "nerf_layers", "appearance_width", "z_branches", "film_hidden", "filter_nodes",
+                  "samples_coarse", "samples_fine", "num_views")
+        _at_least(self, 0, "pe_freqs_pos", "pe_freqs_dir", "loss_backbone_weight", "loss_dynamic_weight")
+        if self.coord_scale <= 0 or not all(0.0 <= c <= 1.0 for c in self.background):
+            raise ValueError(f"coord_scale must be positive and background colours in [0, 1], got "
+                             f"coord_scale={self.coord_scale}, background={self.background}")
         if any(d % 2 for d in self.feature_dims):
             raise ValueError(f"feature_dims must be even (the aggregation halves them), got {self.feature_dims}")
         if not self.separate_fine_head and self.samples_coarse != self.samples_fine:
             raise ValueError("a shared fine head needs samples_coarse == samples_fine "
                              "(the HyperNet mixes along the sample axis); set separate_fine_head=True")
-        if min(self.samples_coarse, self.samples_fine, self.nerf_layers, self.z_branches, self.num_views) < 1:
-            raise ValueError("sample counts, nerf_layers, z_branches and num_views must be positive")
+
+
+def _at_least(cfg: Any, low: float, *names: str) -> None:
+    """ValueError naming every field (a number or a tuple of numbers) with a value below ``low``."""
+    values = {name: getattr(cfg, name) for name in names}
+    bad = [f"{n}={v}" for n, v in values.items() if min(v if isinstance(v, tuple) else (v,)) < low]
+    if bad:
+        raise ValueError(f"{', '.join(bad)}: must be {'positive' if low == 1 else f'at least {low:g}'}")
+
+
+def check_field_types(cfg: Any) -> None:
+    """ValueError unless every field of a dataclass instance has its annotated type: int (not bool), finite
+    float, bool, a Literal's choice, a tuple of those (of the annotated length), None where allowed.
+    A JSON file or a Python caller can put any value in a frozen dataclass; this keeps them out."""
+    hints = typing.get_type_hints(type(cfg))
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if not _has_type(hints[f.name], value):
+            raise ValueError(f"{f.name} must be {_type_name(hints[f.name])}, got {value!r}")
+
+
+def _has_type(hint: Any, value: Any) -> bool:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Literal:
+        return value in args
+    if origin in (typing.Union, types.UnionType):
+        return any(_has_type(a, value) for a in args)
+    if origin is tuple:
+        if not isinstance(value, tuple):
+            return False
+        arms = [args[0]] * len(value) if len(args) == 2 and args[1] is Ellipsis else list(args)
+        return len(arms) == len(value) and all(_has_type(a, v) for a, v in zip(arms, value))
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is type(None):
+        return value is None
+    return isinstance(value, hint) if isinstance(hint, type) else True
+
+
+def _type_name(hint: Any) -> str:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in args)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in args)
+    if origin is tuple:
+        return f"a list of {_type_name(args[0])}" if len(args) == 2 and args[1] is Ellipsis else \
+            f"a list of {len(args)} values ({', '.join(_type_name(a) for a in args)})"
+    names = {float: "a finite number", int: "a whole number", bool: "true or false", type(None): "null"}
+    return names.get(hint, getattr(hint, "__name__", str(hint)))
 
 
 def config_to_json(cfg: Any) -> dict[str, Any]:

@@ -126,6 +126,10 @@ def read_inputs(images_dir: Path, upright_dir: Path) -> InputImages:
     if len(paths) < MIN_IMAGES:
         raise UserError(f"found {len(paths)} image(s) in {images_dir} (extensions {', '.join(IMAGE_EXTENSIONS)}); "
                         f"need at least {MIN_IMAGES} overlapping photos of one scene.")
+    webp = [p.name for p in paths if p.suffix.lower() == ".webp"]  # scenes may use them, COLMAP cannot decode them
+    if webp:
+        raise UserError(f"COLMAP cannot read WebP images: {len(webp)} in {images_dir} (e.g. {webp[0]}); convert them "
+                        "to PNG or JPEG first (e.g. `mogrify -format png *.webp`, then remove the .webp files).")
     sizes: dict[tuple[int, int], list[str]] = {}
     unreadable, rotated = [], []
     for path in paths:

@@ -1,4 +1,4 @@
-"""Click commands, one module each; COMMANDS is what cli.py registers."""
+"""Click commands, one module each; COMMANDS is what group.py registers (on first use)."""
 from .common import user_errors  # noqa: F401  (re-exported for the command modules)
 from .poses import poses
 from .synth import synth

@@ -1,16 +1,19 @@
 """Options and error handling shared by the commands."""
 from __future__ import annotations
 
+import errno
 import functools
+import math
 from typing import Any, Callable
 
 import click
 
-from ..errors import UserError
+from ..errors import INTERRUPTED, INTERRUPTED_EXIT_CODE, UserError, os_error_message
 
 
 def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn a UserError into a one-line click error (exit 1), and Ctrl-C into a short message (exit 130)."""
+    """Turn a UserError or an OSError (permission denied, disk full, read-only, ...) into a one-line click error
+    (exit 1), and Ctrl-C into a short message (exit 130). Any other exception is a bug and keeps its traceback."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -18,11 +21,27 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             return func(*args, **kwargs)
         except UserError as err:
             raise click.ClickException(str(err)) from None
+        except OSError as err:
+            if err.errno == errno.EPIPE:
+                raise  # output piped into e.g. `head`: click quietly handles a closed pipe
+            raise click.ClickException(os_error_message(err)) from None
         except KeyboardInterrupt:
-            click.echo("Interrupted; finished outputs were kept, re-run the same command to continue.", err=True)
-            raise SystemExit(130) from None
+            click.echo(INTERRUPTED, err=True)
+            raise SystemExit(INTERRUPTED_EXIT_CODE) from None
 
     return wrapper
+
+
+class FiniteFloat(click.FloatRange):
+    """A float option that also refuses nan and inf (click's FloatRange lets both through its bounds)."""
+
+    name = "finite float"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return number
 
 
 def device_option(func: Callable[..., Any]) -> Callable[..., Any]:

@@ -8,7 +8,7 @@ import click
 
 from ..pipeline import DEFAULT_CHUNK, DEFAULT_FPS, DEFAULT_RESOLUTION, DEFAULT_VIEWS, RenderConfig, render_scene
 from ..paths import PATH_KINDS
-from .common import device_option, overwrite_option, resolve_device, user_errors
+from .common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
 
 
 def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -37,7 +37,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
                    "input re-renders the input poses.")
 @click.option("--frames", type=click.IntRange(min=1),
               help="Frames of the path [default: 30; for --path input every input view].")
-@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_FPS, show_default=True,
+@click.option("--fps", type=FiniteFloat(min=0, min_open=True), default=DEFAULT_FPS, show_default=True,
               help="Frame rate of the videos.")
 @model_options
 @device_option

@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 from typing import Callable
 
+from ..errors import os_error_message
 from .base import Distortion, Layout, Scene, SceneError
 from .images import IMAGE_EXTENSIONS, find_images, read_rgb, resize
 from .normalize import Similarity, normalize_scene
@@ -69,12 +70,15 @@ def load_scene(path: str | os.PathLike, images: str = "images", split: str | Non
         SceneError: one line saying what is wrong and what to do.
     """
     root = Path(os.path.abspath(path))
-    if root.is_file():
-        root = root.parent
-    if not root.is_dir():
-        raise SceneError(f"{path} does not exist or is not a folder")
-    name = detect_format(root)
-    if name is None:
-        raise _no_format_error(root, images)
-    scene = _readers()[name][1](root, images, tuple(float(c) for c in background))
+    try:
+        if root.is_file():
+            root = root.parent
+        if not root.is_dir():
+            raise SceneError(f"{path} does not exist or is not a folder")
+        name = detect_format(root)
+        if name is None:
+            raise _no_format_error(root, images)
+        scene = _readers()[name][1](root, images, tuple(float(c) for c in background))
+    except OSError as err:  # e.g. an unreadable train/ folder: one line, and datasets can skip the scene
+        raise SceneError(f"cannot read the scene {root}: {os_error_message(err)}") from None
     return scene.subset(scene.split(split)) if split is not None else scene

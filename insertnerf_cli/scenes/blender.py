@@ -32,5 +32,6 @@ def read_blender(root: Path, background: tuple[float, float, float]) -> Scene:
     views = ReadViews(root=root, paths=frames.paths, K=frames.K, c2w=frames.c2w, format="blender",
                       sizes=frames.sizes, near=frames.near, far=frames.far, splits=splits,
                       layout=layout_key(first, source), depth_paths=frames.depth_paths,
-                      depth_scale=depth_scale(first, frames), distortion=frames.distortion)
+                      depth_scale=depth_scale(first, frames, source), distortion=frames.distortion,
+                      source=source if len(files) == 1 else None)
     return assemble(views, background)

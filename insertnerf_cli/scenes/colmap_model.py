@@ -76,7 +76,8 @@ def read_colmap(root: Path, images: str, background: tuple[float, float, float])
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as err:  # noqa: BLE001 - pycolmap raises plain RuntimeError/ValueError on bad files
-        raise SceneError(f"cannot read the COLMAP model in {model_dir}: {err}") from None
+        raise SceneError(f"cannot read the COLMAP model in {model_dir}: {str(err).strip()}; re-export the model "
+                         "(or run `insertnerf poses` on the images)") from None
     # One pass over the images: each rec.images[i] look-up costs a walk over that image's keypoints.
     registered = sorted(((im.name, i, im) for i, im in rec.images.items() if im.has_pose), key=lambda x: x[0])
     if not registered:
@@ -96,5 +97,5 @@ def read_colmap(root: Path, images: str, background: tuple[float, float, float])
     declared = Cameras(K, c2w, sizes[0][0], sizes[0][1])  # projection only needs K and poses
     views = ReadViews(root=root, paths=paths, K=K, c2w=c2w, format="colmap", sizes=sizes,
                       depths=_observed_depths(rec, image_ids, declared),
-                      distortion=dists if any(d is not None for d in dists) else None)
+                      distortion=dists if any(d is not None for d in dists) else None, source=model_dir)
     return assemble(views, background)

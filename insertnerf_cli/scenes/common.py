@@ -22,17 +22,21 @@ from .images import image_size
 ASPECT_TOLERANCE_PX = 1.0
 # How many missing files a message names before it says "and N more".
 _NAMES_SHOWN = 3
+# Values beyond these come from broken files, and break the maths after them (K inversion, normalisation):
+MIN_FOCAL_PX = 1e-2  # a focal length of 0.01 pixels is a field of view of nearly 180 degrees
+MAX_COORD = 1e12  # world units: camera positions and far bounds (squares stay far from float64 overflow)
 
 
-def safe_path(root: Path, relative: str | os.PathLike, what: str = "path") -> Path:
-    """``root / relative`` normalised, refused (SceneError) when it lands outside ``root``.
+def safe_path(root: Path, relative: str | os.PathLike, what: str = "path", source: Path | None = None) -> Path:
+    """``root / relative`` normalised, refused (SceneError) when it lands outside ``root``; messages name
+    ``source`` (the file the path was read from) when given, else ``root``.
 
     Absolute paths and ``..`` that climb out are refused. The check is on the path as written, not on
     symbolic links, so a user may still link a big ``images/`` folder into a scene.
     """
     candidate = Path(os.path.normpath(root / relative))
     if not candidate.is_relative_to(os.path.normpath(root)):
-        raise SceneError(f"{root}: {what} {str(relative)!r} points outside the scene folder; "
+        raise SceneError(f"{source or root}: {what} {str(relative)!r} points outside the scene folder {root}; "
                          "scene files may only refer to files inside their folder")
     return candidate
 
@@ -43,6 +47,7 @@ class ReadViews:
 
     Attributes:
         root: the scene folder.
+        source: the file (or model folder) the cameras come from, named in messages (None: ``root``).
         paths: N image files (already checked with :func:`safe_path`).
         K: [N, 3, 3] intrinsics, each for the image size in ``sizes`` (or the file's size when None).
         c2w: [N, 4, 4] camera-to-world, OpenCV axes.
@@ -67,6 +72,7 @@ class ReadViews:
     depth_paths: list[Path] | None = None
     depth_scale: float = 1.0
     distortion: list[Distortion | None] | None = None
+    source: Path | None = None
 
 
 def names_list(paths: list[str] | list[Path]) -> str:
@@ -121,32 +127,76 @@ def unify_sizes(views: ReadViews) -> Cameras:
     return Cameras(K=K, c2w=views.c2w.to(torch.float64), height=common[0], width=common[1])
 
 
-def _check_poses(views: ReadViews) -> None:
-    """Refuse non-finite or non-rigid poses: they come from broken files and would poison everything after."""
-    c2w = views.c2w.to(torch.float64)
-    if not bool(torch.isfinite(c2w).all() and torch.isfinite(views.K.to(torch.float64)).all()):
-        raise SceneError(f"{views.root}: camera poses or intrinsics contain NaN or infinity")
+def _view_name(views: ReadViews, i: int) -> str:
+    path = views.paths[i]
+    return path.relative_to(views.root).as_posix() if path.is_relative_to(views.root) else str(path)
+
+
+def _first_bad(ok: Tensor) -> int | None:
+    """Index of the first False in a [N] bool tensor, None when all are True."""
+    bad = (~ok).nonzero()
+    return int(bad[0, 0]) if len(bad) else None
+
+
+def check_views(views: ReadViews) -> None:
+    """Refuse what no format may hold: image sizes, focal lengths or poses that are not finite and positive, or
+    poses that are not rigid. They come from broken files and would poison everything after.
+
+    Raises:
+        SceneError: naming the file, the first bad view, its value and what to do.
+    """
+    where = views.source or views.root
+    fix = "correct the file or re-export the scene (e.g. with `insertnerf poses`)"
+    for i, (h, w) in enumerate(views.sizes or []):
+        if h <= 0 or w <= 0:
+            raise SceneError(f"{where}: the camera of {_view_name(views, i)} is for a {w}x{h} image; width and "
+                             f"height must be positive; {fix}")
+    K, c2w = views.K.to(torch.float64), views.c2w.to(torch.float64)
+    focal = torch.stack([K[:, 0, 0], K[:, 1, 1]], dim=-1)  # [N, 2]
+    i = _first_bad(torch.isfinite(K).all(dim=(1, 2)) & (focal >= MIN_FOCAL_PX).all(dim=-1))
+    if i is not None:
+        raise SceneError(f"{where}: the camera of {_view_name(views, i)} has focal length fx={float(focal[i, 0]):g}, "
+                         f"fy={float(focal[i, 1]):g} and principal point cx={float(K[i, 0, 2]):g}, "
+                         f"cy={float(K[i, 1, 2]):g}; focal lengths must be at least {MIN_FOCAL_PX:g} pixels and "
+                         f"all values finite; {fix}")
     rot = c2w[:, :3, :3]
-    eye = torch.eye(3, dtype=torch.float64).expand_as(rot)
-    if not torch.allclose(rot.transpose(1, 2) @ rot, eye, atol=1e-4) or bool((torch.det(rot) < 0).any()):
-        raise SceneError(f"{views.root}: a camera rotation is not a proper rotation (scaled or mirrored pose)")
+    bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
+    finite = torch.isfinite(c2w).all(dim=(1, 2)) & (c2w[:, :3, 3].abs() <= MAX_COORD).all(dim=-1)
+    rot = torch.where(finite[:, None, None], rot, torch.eye(3, dtype=torch.float64))  # no NaN into det()
+    rigid = ((rot.transpose(1, 2) @ rot - torch.eye(3, dtype=torch.float64)).abs().amax(dim=(1, 2)) <= 1e-4) \
+        & (torch.det(rot) > 0) & ((c2w[:, 3] - bottom).abs().amax(dim=-1) <= 1e-6)
+    i = _first_bad(finite & rigid)
+    if i is not None:
+        what = f"contains NaN, infinity or a coordinate beyond {MAX_COORD:g}" if not finite[i] else \
+            "is not a rigid camera pose (its rotation is scaled, mirrored or degenerate, or its last row is not 0 0 0 1)"
+        raise SceneError(f"{where}: the pose of {_view_name(views, i)} {what}; {fix}")
+
+
+def _check_bounds(views: ReadViews, near: Tensor, far: Tensor, given: bool) -> None:
+    """0 < near < far, both finite, for every view."""
+    i = _first_bad(torch.isfinite(near) & (far <= MAX_COORD) & (near > 0) & (far > near))
+    if i is None:
+        return
+    origin = f"{views.source or views.root} gives" if given else f"{views.root}: the scene's geometry gives"
+    raise SceneError(f"{origin} near={float(near[i]):g}, far={float(far[i]):g} for {_view_name(views, i)}; "
+                     f"they must satisfy 0 < near < far <= {MAX_COORD:g}; correct the file or re-export the scene")
 
 
 def assemble(views: ReadViews, background: tuple[float, float, float]) -> Scene:
     """Check the views and build the Scene: common size, bounds (format > points > geometry), layout."""
     if not views.paths:
         raise SceneError(f"{views.root}: the {views.format} scene lists no images")
-    _check_poses(views)
+    check_views(views)
     cameras = unify_sizes(views)
     layout = views.layout or detect_layout(cameras)
-    if views.near is not None and views.far is not None:
+    given = views.near is not None and views.far is not None
+    if given:
         near, far = views.near.to(torch.float64), views.far.to(torch.float64)
     else:
         near, far = bounds_from_geometry(cameras, layout)
         if views.depths is not None:
             near, far = bounds_from_depths(views.depths, (near, far))
-    if not bool(((near > 0) & (far > near)).all()):
-        raise SceneError(f"{views.root}: near/far bounds must satisfy 0 < near < far for every view")
+    _check_bounds(views, near, far, given)
     return Scene(root=views.root, cameras=cameras, image_paths=views.paths, near=near, far=far,
                  splits=views.splits, layout=layout, format=views.format, background=background,
                  depth_paths=views.depth_paths, depth_scale=views.depth_scale, distortion=views.distortion)

@@ -14,15 +14,19 @@ from __future__ import annotations
 
 import math
 import re
+import zipfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
+from ..cameras import w2c_to_c2w
+from ..errors import os_error_message
 from .base import Scene, SceneError
 from .common import ReadViews, assemble, safe_path
 from .images import find_images, image_size
+from .values import matrix, number
 
 CAMERA_DIRS = ("Cameras", "Cameras/train")
 NPZ_NAMES = ("cameras.npz", "cameras_sphere.npz")
@@ -49,10 +53,15 @@ def _parse_cam(path: Path) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]
         w2c = np.array(words[ext + 1: ext + 17], dtype=np.float64).reshape(4, 4)
         K = np.array(words[intr + 1: intr + 10], dtype=np.float64).reshape(3, 3)
         depth = [float(x) for x in words[intr + 10:]]
-    except (OSError, ValueError) as err:
+    except OSError as err:
+        raise SceneError(os_error_message(err)) from None
+    except ValueError as err:
         raise SceneError(f"cannot read DTU camera file {path}: {err}") from None
     if not depth:
         raise SceneError(f"{path}: no 'depth_min depth_interval' line after the intrinsics")
+    matrix(w2c, "extrinsic", path, [(4, 4)])
+    number(K[0, 2], "intrinsic cx", path, low=0.0)  # _fit_K divides by it
+    matrix(K, "intrinsic", path, [(3, 3)])
     far = depth[3] if len(depth) >= 4 else depth[0] + depth[1] * MVSNET_PLANES
     return w2c, K, (depth[0], far)
 
@@ -104,16 +113,16 @@ def read_mvsnet(root: Path, images: str, background: tuple[float, float, float])
     else:
         raise SceneError(f"{root}: no camera folder of {', '.join(CAMERA_DIRS)} has a cam file for every image "
                          f"whose intrinsics fit {size[1]}x{size[0]} images")
-    w2c = torch.from_numpy(np.stack([c[0] for c in cams]))
+    w2c = torch.from_numpy(np.stack([c[0] for c in cams]))  # [N, 4, 4]
     bounds = torch.tensor([c[2] for c in cams], dtype=torch.float64)
     views = ReadViews(root=root, paths=[p for _, p in pairs], K=torch.from_numpy(np.stack(Ks)),
-                      c2w=torch.linalg.inv(w2c), format="dtu", near=bounds[:, 0], far=bounds[:, 1])
+                      c2w=w2c_to_c2w(w2c), format="dtu", near=bounds[:, 0], far=bounds[:, 1], source=root / sub)
     return assemble(views, background)
 
 
 def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """K [3, 3] (positive focal lengths, K[2, 2] = 1) and OpenCV c2w [4, 4] from a projection P [3, 4]."""
-    K, R, center = cv2.decomposeProjectionMatrix(P[:3, :4])[:3]
+    K, R, center = cv2.decomposeProjectionMatrix(P[:3, :4])[:3]  # a degenerate P gives NaN, refused later
     K = K / K[2, 2]
     signs = np.diag(np.sign(np.diag(K)))  # RQ is unique up to these signs; make the focal lengths positive
     K, R = K @ signs, signs @ R
@@ -132,19 +141,25 @@ def read_idr(root: Path, images: str, background: tuple[float, float, float]) ->
     paths = find_images(folder) if folder.is_dir() else []
     try:
         data = dict(np.load(source, allow_pickle=False))
-    except (OSError, ValueError) as err:
-        raise SceneError(f"cannot read {source}: {err}") from None
+    except OSError as err:
+        raise SceneError(os_error_message(err)) from None
+    except (ValueError, EOFError, zipfile.BadZipFile) as err:
+        raise SceneError(f"cannot read {source}: {err or 'empty file'}") from None
     if not paths or any(f"world_mat_{i}" not in data for i in range(len(paths))):
         raise SceneError(f"{source}: needs world_mat_0..world_mat_{len(paths) - 1} for the {len(paths)} images "
                          f"in {folder.name}/")
     has_scale = all(f"scale_mat_{i}" in data for i in range(len(paths)))
-    Ks, poses = zip(*(decompose_projection(data[f"world_mat_{i}"] @ data[f"scale_mat_{i}"] if has_scale
-                                           else data[f"world_mat_{i}"]) for i in range(len(paths))))
+    mats = [matrix(data[f"world_mat_{i}"], f"world_mat_{i}", source, [(3, 4), (4, 4)]) for i in range(len(paths))]
+    if has_scale:
+        mats = [P[:3] @ matrix(data[f"scale_mat_{i}"], f"scale_mat_{i}", source, [(4, 4)])
+                for i, P in enumerate(mats)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Ks, poses = zip(*(decompose_projection(P) for P in mats))
     c2w = torch.from_numpy(np.stack(poses))
     near = far = None
     if has_scale:  # the object lies in the unit sphere: bound it along each camera's distance to the origin
         dist = c2w[:, :3, 3].norm(dim=-1)
         near, far = (dist - 1.0).clamp(min=0.05 * dist), dist + 1.0
     views = ReadViews(root=root, paths=paths, K=torch.from_numpy(np.stack(Ks)), c2w=c2w, format="dtu",
-                      near=near, far=far, layout="object" if has_scale else None)
+                      near=near, far=far, layout="object" if has_scale else None, source=source)
     return assemble(views, background)

@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..errors import os_error_message
 from .base import Distortion, SceneError
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
@@ -36,7 +37,7 @@ def _decode(path: Path) -> np.ndarray:
     try:
         data = np.fromfile(path, dtype=np.uint8)  # fromfile + imdecode copes with any path encoding
     except OSError as err:
-        raise SceneError(f"cannot read image {path}: {err.strerror or err}") from None
+        raise SceneError(os_error_message(err)) from None
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise SceneError(f"cannot decode image {path}: not a readable image file (corrupt or unsupported)")

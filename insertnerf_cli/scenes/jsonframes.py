@@ -15,10 +15,12 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..cameras import check_shape, intrinsics, opengl_to_opencv
+from ..cameras import intrinsics, opengl_to_opencv
+from ..errors import os_error_message
 from .base import Distortion, SceneError
 from .common import names_list, safe_path
 from .images import image_size
+from .values import matrix, number, objects, text, whole
 
 # nerfstudio's default for depth_unit_scale_factor: 16-bit PNGs in millimetres of a metre-scale scene.
 DEFAULT_DEPTH_SCALE = 1e-3
@@ -51,66 +53,96 @@ def load_json(path: Path) -> dict[str, Any]:
     """Parse a JSON object, with a one-line SceneError for unreadable or malformed files."""
     try:
         data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+    except OSError as err:
+        raise SceneError(os_error_message(err)) from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise SceneError(f"cannot read {path}: {err}") from None
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
         raise SceneError(f"{path} is not a transforms file: it needs a top-level object with a 'frames' list")
+    objects(data["frames"], "frames", path)
     return data
 
 
-def _image_path(root: Path, frame: dict[str, Any], default_ext: str | None, source: Path) -> Path:
-    if "file_path" not in frame:
-        raise SceneError(f"{source}: a frame has no 'file_path'")
-    path = safe_path(root, frame["file_path"], "file_path")
+@dataclass(frozen=True)
+class _Keys:
+    """One frame's keys, falling back to the file's top-level ones; every value is read through values.py."""
+
+    frame: dict[str, Any]
+    meta: dict[str, Any]
+    index: int
+    source: Path
+
+    def field(self, key: str) -> str:
+        """Where a key's value comes from, for messages: 'frames[3].fl_x' or the top-level 'fl_x'."""
+        return f"frames[{self.index}].{key}" if key in self.frame else key
+
+    def raw(self, key: str) -> Any:
+        return self.frame.get(key, self.meta.get(key))
+
+    def number(self, key: str, default: float | None = None, **limits: Any) -> float | None:
+        value = self.raw(key)
+        return default if value is None else number(value, self.field(key), self.source, **limits)
+
+    def whole(self, key: str) -> int | None:
+        value = self.raw(key)
+        return None if value is None else whole(value, self.field(key), self.source)
+
+
+def _image_path(root: Path, keys: _Keys, default_ext: str | None) -> Path:
+    if "file_path" not in keys.frame:
+        raise SceneError(f"{keys.source}: frames[{keys.index}] has no 'file_path'")
+    field = keys.field("file_path")
+    path = safe_path(root, text(keys.frame.get("file_path"), field, keys.source), field, keys.source)
     if default_ext and not path.suffix and not path.is_file():
         path = path.with_suffix(default_ext)  # NeRF-Synthetic writes './train/r_0' for './train/r_0.png'
     return path
 
 
-def _intrinsics(get: Any, path: Path) -> tuple[Tensor, tuple[int, int]]:
+def _focal(keys: _Keys, axis: str, size: int) -> float | None:
+    """fl_<axis>, else the focal length of camera_angle_<axis> over ``size`` pixels, else None."""
+    focal = keys.number(f"fl_{axis}", low=0.0, unit=" (pixels)")
+    if focal is not None:
+        return focal
+    angle = keys.number(f"camera_angle_{axis}", low=0.0, high=math.pi, unit=" (radians)")
+    return None if angle is None else 0.5 * size / math.tan(0.5 * angle)
+
+
+def _intrinsics(keys: _Keys, path: Path) -> tuple[Tensor, tuple[int, int]]:
     """K [3, 3] and the (height, width) it refers to, from keys (file size when w/h are absent)."""
-    if get("w") is not None and get("h") is not None:
-        h, w = int(get("h")), int(get("w"))
-    else:
-        h, w = image_size(path) if path.is_file() else (0, 0)
-        if h == 0:
+    h, w = keys.whole("h"), keys.whole("w")
+    if h is None or w is None:
+        if not path.is_file():
             raise SceneError(f"{path}: image is missing and the transforms file gives no 'w'/'h'")
-    if get("fl_x") is not None:
-        fx = float(get("fl_x"))
-        fy = float(get("fl_y")) if get("fl_y") is not None else fx
-    elif get("camera_angle_x") is not None:
-        fx = 0.5 * w / math.tan(0.5 * float(get("camera_angle_x")))
-        fy = 0.5 * h / math.tan(0.5 * float(get("camera_angle_y"))) if get("camera_angle_y") is not None else fx
-    else:
-        raise SceneError(f"{path}: no focal length: the transforms file needs 'fl_x' or 'camera_angle_x'")
-    cx = float(get("cx")) if get("cx") is not None else 0.5 * w
-    cy = float(get("cy")) if get("cy") is not None else 0.5 * h
+        h, w = image_size(path)
+    fx = _focal(keys, "x", w)
+    if fx is None:
+        raise SceneError(f"{keys.source}: frames[{keys.index}] has no focal length: the transforms file needs "
+                         "'fl_x' or 'camera_angle_x'")
+    fy = _focal(keys, "y", h) or fx
+    cx, cy = keys.number("cx", 0.5 * w), keys.number("cy", 0.5 * h)
     return intrinsics(fx, fy, cx, cy), (h, w)
 
 
-def _distortion(get: Any, source: Path) -> Distortion | None:
+def _distortion(keys: _Keys) -> Distortion | None:
     """The frame's distortion, None when all coefficients are zero; refuses models we cannot undistort exactly."""
-    model = str(get("camera_model") or "OPENCV").upper()
+    model = str(keys.raw("camera_model") or "OPENCV").upper()
     if model in ("EQUIRECTANGULAR", "OMNIDIRECTIONALSTEREO_L", "OMNIDIRECTIONALSTEREO_R"):
-        raise SceneError(f"{source}: camera_model {model} is not a pinhole camera; only OPENCV and "
+        raise SceneError(f"{keys.source}: camera_model {model} is not a pinhole camera; only OPENCV and "
                          "OPENCV_FISHEYE are supported")
     names = _FISHEYE if model == "OPENCV_FISHEYE" else _RADIAL_TANGENTIAL
-    coeffs = tuple(float(get(k) or 0.0) for k in names)
-    if model != "OPENCV_FISHEYE" and float(get("k4") or 0.0) != 0.0:
-        raise SceneError(f"{source}: k4 is set for an OPENCV camera, which OpenCV cannot undistort; "
+    coeffs = tuple(keys.number(k, 0.0) for k in names)
+    if model != "OPENCV_FISHEYE" and keys.number("k4", 0.0) != 0.0:
+        raise SceneError(f"{keys.source}: k4 is set for an OPENCV camera, which OpenCV cannot undistort; "
                          "undistort the images first (e.g. `insertnerf poses`)")
     if not any(coeffs):
         return None
     return Distortion("fisheye" if model == "OPENCV_FISHEYE" else "opencv", coeffs)
 
 
-def _pose(frame: dict[str, Any], source: Path) -> Tensor:
-    try:
-        c2w_gl = torch.tensor(frame["transform_matrix"], dtype=torch.float64)
-        check_shape("transform_matrix", c2w_gl, (4, 4))
-    except (KeyError, TypeError, ValueError, RuntimeError):
-        raise SceneError(f"{source}: a frame has no valid 4x4 'transform_matrix'") from None
-    return opengl_to_opencv(c2w_gl)
+def _pose(keys: _Keys) -> Tensor:
+    c2w_gl = matrix(keys.frame.get("transform_matrix"), f"frames[{keys.index}].transform_matrix", keys.source,
+                    [(4, 4)])
+    return opengl_to_opencv(torch.from_numpy(c2w_gl))
 
 
 def _all_or_none(values: list[Any], what: str, source: Path) -> list[Any] | None:
@@ -124,19 +156,20 @@ def read_frames(root: Path, sources: list[tuple[Path, dict[str, Any]]], default_
     """Frames of the given (json path, parsed json) pairs, in order; all file paths relative to ``root``."""
     paths, Ks, sizes, poses, bounds, depths, dists = [], [], [], [], [], [], []
     for source, meta in sources:
-        for frame in meta["frames"]:
-            get = lambda key, f=frame: f.get(key, meta.get(key))  # noqa: E731 - per-frame key, else top level
-            path = _image_path(root, frame, default_ext, source)
-            K, size = _intrinsics(get, path)
+        for index, frame in enumerate(meta["frames"]):
+            keys = _Keys(frame, meta, index, source)
+            path = _image_path(root, keys, default_ext)
+            K, size = _intrinsics(keys, path)
             paths.append(path)
             Ks.append(K)
             sizes.append(size)
-            poses.append(_pose(frame, source))
-            near, far = get("near"), get("far")
-            bounds.append(None if near is None or far is None else (float(near), float(far)))
+            poses.append(_pose(keys))
+            near, far = keys.number("near"), keys.number("far")
+            bounds.append(None if near is None or far is None else (near, far))
             depth = frame.get("depth_file_path")
-            depths.append(None if depth is None else safe_path(root, depth, "depth_file_path"))
-            dists.append(_distortion(get, source))
+            field = keys.field("depth_file_path")
+            depths.append(None if depth is None else safe_path(root, text(depth, field, source), field, source))
+            dists.append(_distortion(keys))
     if not paths:
         raise SceneError(f"{names_list([s for s, _ in sources])}: no frames")
     bounds_ok = _all_or_none(bounds, "near/far", sources[0][0])
@@ -147,9 +180,11 @@ def read_frames(root: Path, sources: list[tuple[Path, dict[str, Any]]], default_
                   distortion=dists if any(d is not None for d in dists) else None)
 
 
-def depth_scale(meta: dict[str, Any], frames: Frames) -> float:
+def depth_scale(meta: dict[str, Any], frames: Frames, source: Path) -> float:
     """Scene units per stored depth unit: the file's factor, nerfstudio's default with depth files, else 1."""
-    return float(meta.get("depth_unit_scale_factor", DEFAULT_DEPTH_SCALE if frames.depth_paths else 1.0))
+    default = DEFAULT_DEPTH_SCALE if frames.depth_paths else 1.0
+    value = meta.get("depth_unit_scale_factor")
+    return default if value is None else number(value, "depth_unit_scale_factor", source, low=0.0)
 
 
 def layout_key(meta: dict[str, Any], source: Path) -> str | None:

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from ..cameras import intrinsics, llff_to_opencv
+from ..errors import os_error_message
 from .base import Scene, SceneError
 from .common import ReadViews, assemble, safe_path
 from .images import find_images
@@ -24,10 +25,17 @@ def load_poses_bounds(path: Path) -> np.ndarray:
     """The [N, 17] array, checked (no pickles: the file is data, not code)."""
     try:
         data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise SceneError(f"cannot read {path}: {err}") from None
-    if data.ndim != 2 or data.shape[1] != _ROW or data.shape[0] == 0:
-        raise SceneError(f"{path}: expected an [N, {_ROW}] array, got shape {list(data.shape)}")
+    except OSError as err:
+        raise SceneError(os_error_message(err)) from None
+    except (ValueError, EOFError) as err:
+        raise SceneError(f"cannot read {path}: {err or 'empty file'}") from None
+    if data.ndim != 2 or data.shape[1] != _ROW or data.shape[0] == 0 or not np.issubdtype(data.dtype, np.number):
+        raise SceneError(f"{path}: expected an [N, {_ROW}] array of numbers, got shape {list(data.shape)} "
+                         f"of {data.dtype}")
+    bad = np.flatnonzero(~np.isfinite(data.astype(np.float64)).all(axis=1))
+    if len(bad):
+        raise SceneError(f"{path}: {len(bad)} of {len(data)} rows hold NaN or infinity (row {bad[0]} first); every "
+                         f"row needs {_ROW} finite numbers; re-create the file (e.g. with `insertnerf poses`)")
     return data.astype(np.float64)
 
 
@@ -46,5 +54,5 @@ def read_llff(root: Path, images: str, background: tuple[float, float, float]) -
     sizes = [(int(round(float(h))), int(round(float(w)))) for h, w, _ in hwf]
     bounds = torch.from_numpy(data[:, 15:])
     views = ReadViews(root=root, paths=paths, K=K, c2w=llff_to_opencv(mats[:, :, :4]), format="llff",
-                      sizes=sizes, near=bounds[:, 0], far=bounds[:, 1])
+                      sizes=sizes, near=bounds[:, 0], far=bounds[:, 1], source=root / FILENAME)
     return assemble(views, background)

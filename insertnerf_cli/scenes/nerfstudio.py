@@ -19,8 +19,10 @@ from .base import Scene, SceneError
 from .common import ReadViews, assemble, safe_path
 from .geometry import point_depths
 from .jsonframes import depth_scale, layout_key, load_json, read_frames
+from .values import FIX, listing, matrix, show, text
 
 FILENAME = "transforms.json"
+_SINGULAR = 1e-12  # |det| below this: applied_transform cannot be undone
 
 
 def _applied_transform(meta: dict[str, Any], source: Path) -> Tensor:
@@ -28,20 +30,19 @@ def _applied_transform(meta: dict[str, Any], source: Path) -> Tensor:
     A = torch.eye(4, dtype=torch.float64)
     if "applied_transform" not in meta:
         return A
-    try:
-        given = torch.tensor(meta["applied_transform"], dtype=torch.float64)
-        A[: given.shape[0], :] = given
-        torch.linalg.inv(A)
-    except (TypeError, ValueError, RuntimeError):
-        raise SceneError(f"{source}: 'applied_transform' must be a 3x4 or 4x4 invertible matrix") from None
+    given = matrix(meta["applied_transform"], "applied_transform", source, [(3, 4), (4, 4)])
+    A[: given.shape[0], :] = torch.from_numpy(given)
+    if abs(float(torch.linalg.det(A))) < _SINGULAR:
+        raise SceneError(f"{source}: 'applied_transform' must be an invertible matrix, got {show(given)}; {FIX}")
     return A
 
 
-def _ply_depths(root: Path, meta: dict[str, Any], cameras: Cameras, A_inv: Tensor) -> list[Tensor] | None:
+def _ply_depths(root: Path, meta: dict[str, Any], cameras: Cameras, A_inv: Tensor,
+                source: Path) -> list[Tensor] | None:
     """Per-view depths of the points in ``ply_file_path`` (ns-process-data's sparse_pc.ply), None without one."""
     if "ply_file_path" not in meta:
         return None
-    path = safe_path(root, meta["ply_file_path"], "ply_file_path")
+    path = safe_path(root, text(meta["ply_file_path"], "ply_file_path", source), "ply_file_path", source)
     try:
         import trimesh
 
@@ -60,7 +61,9 @@ def _splits(root: Path, meta: dict[str, Any], paths: list[Path], source: Path) -
         listed = meta.get(f"{name}_filenames")
         if listed is None:
             continue
-        wanted = [safe_path(root, f, f"{name}_filenames entry") for f in listed]
+        field = f"{name}_filenames"
+        wanted = [safe_path(root, text(f, f"{field}[{i}]", source), f"{field}[{i}]", source)
+                  for i, f in enumerate(listing(listed, field, source))]
         unknown = [str(p.name) for p in wanted if p not in index]
         if unknown:
             raise SceneError(f"{source}: {name}_filenames lists files that no frame has: {', '.join(unknown[:3])}")
@@ -77,10 +80,10 @@ def read_nerfstudio(root: Path, background: tuple[float, float, float]) -> Scene
     depths = None
     if frames.near is None:
         h, w = frames.sizes[0]  # projection needs K and poses; the size only bounds "inside the image"
-        depths = _ply_depths(root, meta, Cameras(frames.K, c2w, h, w), A_inv)
+        depths = _ply_depths(root, meta, Cameras(frames.K, c2w, h, w), A_inv, source)
     views = ReadViews(root=root, paths=frames.paths, K=frames.K, c2w=c2w, format="nerfstudio",
                       sizes=frames.sizes, near=frames.near, far=frames.far, depths=depths,
                       splits=_splits(root, meta, frames.paths, source), layout=layout_key(meta, source),
-                      depth_paths=frames.depth_paths, depth_scale=depth_scale(meta, frames),
-                      distortion=frames.distortion)
+                      depth_paths=frames.depth_paths, depth_scale=depth_scale(meta, frames, source),
+                      distortion=frames.distortion, source=source)
     return assemble(views, background)

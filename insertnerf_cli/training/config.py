@@ -7,8 +7,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..config import ModelConfig, config_from_json
+from ..config import ModelConfig, check_field_types, config_from_json
 from ..errors import UserError
+
+
+_SEED_LIMIT = 2 ** 63  # torch.manual_seed takes a signed 64-bit integer
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,10 @@ class TrainConfig:
     cache_mb: int = 1024
 
     def __post_init__(self) -> None:
+        try:
+            check_field_types(self)  # e.g. --lr nan, or a string in a hand-edited config.json
+        except ValueError as err:
+            raise UserError(f"invalid training setting: {err}") from None
         positive = ("steps", "rays", "lr_half_life", "resolution", "val_every", "val_rays", "ckpt_every",
                     "log_every", "cache_mb")
         bad = [name for name in positive if getattr(self, name) < 1]
@@ -58,7 +65,10 @@ class TrainConfig:
         if self.minutes is not None and self.minutes <= 0:
             raise UserError(f"--minutes must be positive, got {self.minutes}")
         if min(self.lr, self.lr_encoder) <= 0 or self.lr_min < 0 or self.val_scenes < 0:
-            raise UserError("learning rates must be positive, lr_min and val_scenes >= 0")
+            raise UserError(f"learning rates must be positive, lr_min and val_scenes >= 0; got lr={self.lr}, "
+                            f"lr_encoder={self.lr_encoder}, lr_min={self.lr_min}, val_scenes={self.val_scenes}")
+        if not 0 <= self.seed < _SEED_LIMIT:
+            raise UserError(f"--seed must be between 0 and {_SEED_LIMIT - 1} (torch's seed range), got {self.seed}")
 
     def learning_rate(self, base: float, step: int) -> float:
         """base * 0.5 ** (step / lr_half_life), not below lr_min (method.md section 9)."""
@@ -97,7 +107,10 @@ def read_model_config(path: Path) -> ModelConfig:
         raise UserError(f"model config {path} cannot be read as JSON ({err}).") from None
     if isinstance(data, dict) and isinstance(data.get("model"), dict):
         data = data["model"]
-    return config_from_json(ModelConfig, data)
+    try:
+        return config_from_json(ModelConfig, data)
+    except UserError as err:
+        raise UserError(f"model config {path}: {err}; fix the file.") from None
 
 
 def saved_train_config(checkpoint_path: Path) -> TrainConfig:
