@@ -24,9 +24,10 @@ from .atomic import write_json
 from .cameras import Cameras
 from .errors import UserError
 from .metrics import SSIM_WINDOW, psnr, ssim
-from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, depth_to_turbo, depth_to_uint16, ffmpeg_exe,
-                      frame_paths, prepare_out_dir, side_by_side, write_cameras_json, write_frame, write_png,
-                      write_video)
+from .outdir import OutputRecord, check_output, remove_if_empty
+from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, claim_render_outputs, depth_to_turbo,
+                      depth_to_uint16, ffmpeg_exe, frame_name, frame_paths, prepare_out_dir, side_by_side,
+                      write_cameras_json, write_frame, write_png, write_state, write_video)
 from .paths import CameraPath, default_path_kind, make_path
 
 DEFAULT_FRAMES = 30
@@ -82,13 +83,25 @@ class RenderSummary:
     width: int
     seconds_per_frame: float | None
     depth_clipped: int
+    wall_s: float = 0.0  # the whole command, start-up and videos included
 
     def line(self) -> str:
         speed = "" if self.seconds_per_frame is None else f", {self.seconds_per_frame:.1f} s/frame"
         kept = f" ({self.resumed} kept from the earlier run)" if self.resumed else ""
         clip = f"; {self.depth_clipped} depth pixels beyond 65.5 units were clipped" if self.depth_clipped else ""
-        return (f"{self.frames} frames ({self.path}, {self.width}x{self.height}) in {self.out_dir}: rendered "
-                f"{self.rendered}{kept}{speed}; see video.mp4, depth.mp4, cameras.json{clip}")
+        return (f"{self.frames} frames ({self.path}, {self.width}x{self.height}) in {self.out_dir.resolve()}: "
+                f"rendered {self.rendered}{kept}{speed}, {_duration(self.wall_s)} in total; see video.mp4, "
+                f"depth.mp4, cameras.json{clip}")
+
+
+def _duration(seconds: float) -> str:
+    """"42 s", "3 min 05 s" or "1 h 02 min"."""
+    seconds = round(seconds)
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"
 
 
 @dataclass(frozen=True)
@@ -164,16 +177,26 @@ def _is_scene(folder: Path) -> bool:
     return detect_format(folder) is not None
 
 
-def _posed_photos(scene_dir: Path, poses_dir: Path):
-    """The scene pycolmap makes of a plain photo folder, estimated once into ``poses_dir`` and reused after."""
+def _posed_photos(scene_dir: Path, out_dir: Path, created: bool):
+    """The scene pycolmap makes of a plain photo folder, estimated once into OUT/poses and reused after.
+
+    A failure leaves no trace in an OUT this run ``created`` (no record, no folder)."""
     from .scenes import load_scene
 
+    poses_dir = out_dir / POSES_DIR
     if not (poses_dir / "transforms.json").is_file():
         from .colmap import PosesOptions, estimate_poses
 
         print(f"{scene_dir} is a folder of photos without poses: estimating them with COLMAP into {poses_dir} "
               "(once; later runs reuse them)", file=sys.stderr)
-        estimate_poses(scene_dir, poses_dir, PosesOptions(overwrite=True))
+        OutputRecord(out_dir).claim(POSES_DIR)
+        try:
+            estimate_poses(scene_dir, poses_dir, PosesOptions(overwrite=True))
+        except BaseException:
+            if created:
+                OutputRecord(out_dir).remove()
+                remove_if_empty(out_dir)
+            raise
     return load_scene(poses_dir)
 
 
@@ -263,22 +286,28 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     """Render a camera path of the scene in ``scene_dir`` into ``out_dir`` (see outputs.py for the files).
 
     Raises:
-        UserError: no ffmpeg, unreadable scene, failed pose estimation, bad checkpoint, or an output folder
-            holding a different run without ``config.overwrite``.
+        UserError: no ffmpeg, unreadable scene, failed pose estimation, bad checkpoint, an output folder inside
+            the scene (or holding it) or not writable, or one holding a different run without ``config.overwrite``.
     """
     from .scenes import load_scene
 
+    started = time.perf_counter()
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
+    check_output(out_dir, [scene_dir], kind="input scene")
     ffmpeg_exe()  # before any long work: the videos need it
     checkpoint = _checkpoint_path(config.checkpoint)
     images = None if _is_scene(scene_dir) else _image_fingerprint(scene_dir)
     # A bad scene, path or checkpoint fails here, before OUT is touched.
     planned = _plan(load_scene(scene_dir), config) if images is None else None
     model = _load_model(checkpoint, config.device)
-    prepare_out_dir(out_dir, _render_state(scene_dir, checkpoint, config, images), config.overwrite)
-    scene, similarity, path = planned or _plan(_posed_photos(scene_dir, out_dir / POSES_DIR), config)
+    state = _render_state(scene_dir, checkpoint, config, images)
+    created = not out_dir.exists()
+    prepare_out_dir(out_dir, state, config.overwrite)
+    scene, similarity, path = planned or _plan(_posed_photos(scene_dir, out_dir, created), config)
     user_cams = similarity.inverse().apply_cameras(path.cameras)
     check_resumable(out_dir, user_cams)
+    claim_render_outputs(out_dir, len(path))
+    write_state(out_dir, state)
     write_cameras_json(out_dir / CAMERAS_JSON, user_cams, path.near / similarity.scale, path.far / similarity.scale,
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               "normalization": similarity.to_json()})
@@ -287,7 +316,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     for video, sub in zip(VIDEOS, ("frame", "depth_vis")):
         write_video(out_dir / video, [getattr(frame_paths(out_dir, i), sub) for i in range(len(path))], config.fps)
     return RenderSummary(out_dir, path.kind, len(path), rendered, resumed, path.cameras.height, path.cameras.width,
-                         seconds / rendered if rendered else None, clipped)
+                         seconds / rendered if rendered else None, clipped, time.perf_counter() - started)
 
 
 def _render_frames(renderer: _Renderer, path: CameraPath, out_dir: Path, scale: float) -> tuple[int, int, float, int]:
@@ -295,6 +324,9 @@ def _render_frames(renderer: _Renderer, path: CameraPath, out_dir: Path, scale: 
     todo = [i for i in range(len(path)) if not frame_paths(out_dir, i).all_exist()]
     resumed, seconds, clipped = len(path) - len(todo), 0.0, 0
     near, far = float(path.near.min()), float(path.far.max())
+    if not todo:  # no bar: a finished one printed at start and again at close reads as two in a log
+        print(f"all {len(path)} frames are already rendered in {out_dir}; assembling the videos", file=sys.stderr)
+        return 0, resumed, seconds, clipped
     bar = tqdm(total=len(path), initial=resumed, unit="frame", desc="rendering", file=sys.stderr, dynamic_ncols=True)
     with bar:
         for i in todo:
@@ -325,14 +357,34 @@ def held_out_views(scene, max_views: int | None = None) -> list[int]:
     return sorted(set(test))
 
 
-def _check_eval_outputs(config: EvalConfig) -> None:
-    """Refuse, before any work, to replace an existing report or side-by-sides without overwrite."""
+# Side-by-sides that eval versions without an output record wrote (what --overwrite removes from such a folder).
+_EVAL_LEGACY_OUTPUTS = ("[0-9][0-9][0-9][0-9][0-9].png",)
+
+
+def _check_eval_outputs(scene_dir: Path, config: EvalConfig) -> None:
+    """Refuse, before any work, outputs inside the inputs or not writable, and replacing an existing report or
+    side-by-sides without overwrite."""
+    inputs = [scene_dir, config.checkpoint]
+    if config.json_path is not None:
+        check_output(Path(config.json_path), inputs, is_dir=False, what="--json", kind="input scene or checkpoint")
+    if config.out_dir is not None:
+        check_output(Path(config.out_dir), inputs, kind="input scene or checkpoint")
     if config.overwrite:
         return
     if config.json_path is not None and Path(config.json_path).exists():
         raise UserError(f"{config.json_path} exists; pass --overwrite to replace it or choose another --json")
     if config.out_dir is not None and Path(config.out_dir).is_dir() and any(Path(config.out_dir).iterdir()):
-        raise UserError(f"{config.out_dir} is not empty; pass --overwrite to replace its images or choose another --out")
+        raise UserError(f"{config.out_dir} is not empty; pass --overwrite to replace the images insertnerf wrote "
+                        "there (other files are kept) or choose another --out")
+
+
+def _prepare_side_by_sides(out_dir: Path | None, held: list[int]) -> None:
+    """Remove the side-by-sides of an earlier eval (only ours) and record the ones this run writes."""
+    if out_dir is None:
+        return
+    record = OutputRecord(out_dir)
+    record.remove(legacy=_EVAL_LEGACY_OUTPUTS)
+    record.claim(*(frame_name(i) for i in held))
 
 
 def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
@@ -340,13 +392,14 @@ def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
     side-by-sides and JSON report that ``config`` asks for."""
     from .scenes import load_scene, normalize_scene
 
-    _check_eval_outputs(config)
+    _check_eval_outputs(Path(scene_dir), config)
     scene, _ = normalize_scene(load_scene(Path(scene_dir)))
     held = held_out_views(scene, config.max_views)
     size = scene.size_for(config.resolution)
     if min(size) < SSIM_WINDOW:
         raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
     renderer = _Renderer(_load_model(_checkpoint_path(config.checkpoint), config.device), scene, config, size)
+    _prepare_side_by_sides(config.out_dir and Path(config.out_dir), held)
     scores = []
     for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):
         start = time.perf_counter()
@@ -358,7 +411,7 @@ def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
         scores.append(ViewScore(index, scene.names[index], psnr(render, truth), ssim(render, truth), tuple(refs),
                                 time.perf_counter() - start))
         if config.out_dir is not None:
-            write_png(Path(config.out_dir) / f"{index:05d}.png", side_by_side(render, truth))
+            write_png(Path(config.out_dir) / frame_name(index), side_by_side(render, truth))
     report = EvalReport(Path(scene_dir), size[0], size[1], float(np.mean([s.psnr for s in scores])),
                         float(np.mean([s.ssim for s in scores])), tuple(scores))
     if config.json_path is not None:

@@ -1,0 +1,180 @@
+"""Output locations: where a command may write, and what `--overwrite` may remove.
+
+Every output folder keeps a record, ``.insertnerf-outputs.json``, of the paths (relative to it) that insertnerf
+created there. A path is recorded *before* it is created, so a killed run leaves nothing of ours unrecorded, and
+``--overwrite`` removes recorded paths only: a user's file beside ours, or inside one of our folders, survives
+(a recorded folder is removed only once it is empty). A recorded folder may hold a record of its own (a synth
+scene, a posed scene); removal then follows that record too. Folders written by versions without records are
+cleared by the exact file-name patterns those versions wrote, never wholesale.
+
+The location checks run before any work: an output that is, holds or lies inside an input is refused (resolved
+paths, symlinks followed), and so is one whose parent is a file or not writable.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from .atomic import stray_temporaries, write_json
+from .errors import UserError
+
+RECORD_NAME = ".insertnerf-outputs.json"
+_RECORD_KIND = "insertnerf outputs"
+
+
+# ------------------------------------------------------------------------------------------------ locations
+def _resolved(path: Path) -> Path:
+    return Path(os.path.abspath(path)).resolve()  # resolve(strict=False) follows every existing symlink
+
+
+def check_not_inside_inputs(out: Path, inputs: Iterable[Path | None], what: str = "--out",
+                            kind: str = "input") -> None:
+    """Refuse an output that is, contains, or lies inside one of ``inputs`` (None entries are skipped);
+    ``kind`` names the inputs in the message ("input images")."""
+    target = _resolved(out)
+    for given in inputs:
+        if given is None:
+            continue
+        source = _resolved(given)
+        if target == source or source in target.parents:
+            where = "is" if target == source else "lies inside"
+            raise UserError(f"{what} {out} {where} the {kind} {given}; insertnerf never writes into its inputs: "
+                            "choose an output outside it.")
+        if target in source.parents:
+            raise UserError(f"{what} {out} contains the {kind} {given}; choose an output folder that does not "
+                            "hold your input data (replacing it could delete them).")
+
+
+def _nearest_existing(path: Path) -> Path:
+    path = Path(os.path.abspath(path))
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def check_writable(path: Path, is_dir: bool, what: str = "--out") -> None:
+    """Refuse, before any work, an output path that cannot be created or written.
+
+    ``path`` is an output folder (``is_dir``) or file. Its nearest existing ancestor must be a writable folder; a
+    file in the way, or a folder of the wrong kind at ``path``, is refused.
+    """
+    if path.exists():
+        if is_dir and not path.is_dir():
+            raise UserError(f"{what} {path} is a file; pass a folder.")
+        if not is_dir and path.is_dir():
+            raise UserError(f"{what} {path} is a folder; pass a file name.")
+        folder = path if is_dir else path.parent
+    else:
+        folder = _nearest_existing(path.parent)
+        if not folder.is_dir():
+            raise UserError(f"{what} {path} cannot be created: {folder} is a file, not a folder; choose another "
+                            "path.")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise UserError(f"{what} {path}: no permission to write in {folder}; choose a folder you can write to, "
+                        "or change its permissions.")
+
+
+def check_output(out: Path, inputs: Sequence[Path | None], is_dir: bool = True, what: str = "--out",
+                 kind: str = "input") -> None:
+    """Both checks above: the output is away from the inputs and can be written."""
+    check_not_inside_inputs(out, inputs, what, kind)
+    check_writable(out, is_dir, what)
+
+
+# --------------------------------------------------------------------------------------------------- record
+def _clean_name(name: str) -> str | None:
+    """A record entry as a relative POSIX path inside its folder, or None for one that would leave it."""
+    if not isinstance(name, str) or not name or name.startswith("/") or "\\" in name:
+        return None
+    parts = [p for p in name.split("/") if p not in ("", ".")]
+    if not parts or ".." in parts:
+        return None
+    return "/".join(parts)
+
+
+class OutputRecord:
+    """The record of one output folder ``root``: the relative paths insertnerf created in it."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self.file = self.root / RECORD_NAME
+        self.paths, self.exists = self._read()
+
+    def _read(self) -> tuple[set[str], bool]:
+        try:
+            data = json.loads(self.file.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return set(), False
+        except (OSError, ValueError):
+            return set(), True  # an unreadable record removes nothing (and is rewritten)
+        names = data.get("paths", []) if isinstance(data, dict) else []
+        return {n for n in map(_clean_name, names if isinstance(names, list) else []) if n}, True
+
+    def _write(self) -> None:
+        if not self.paths:
+            self.file.unlink(missing_ok=True)
+            self.exists = False
+            return
+        write_json(self.file, {"kind": _RECORD_KIND, "paths": sorted(self.paths)})
+        self.exists = True
+
+    def claim(self, *names: str) -> None:
+        """Record ``names`` (relative to root, folders too) before creating them; creates root if needed."""
+        new = {n for n in map(_clean_name, names) if n} - self.paths
+        if new or not self.exists:
+            self.root.mkdir(parents=True, exist_ok=True)
+            self.paths |= new
+            self._write()
+
+    def remove(self, legacy: Sequence[str] = (), keep: Sequence[str] = ()) -> None:
+        """Delete the recorded paths (or, with no record, those matching the ``legacy`` glob patterns; a pattern
+        ending in "/" names folders), except those under a top-level name in ``keep``; foreign files stay."""
+        names = self.paths if self.exists else {n for p in legacy for n in self._glob(p)}
+        kept = {n for n in names if n.split("/")[0] in keep}
+        for name in sorted(names - kept, key=lambda n: (-n.count("/"), n)):  # children before their folders
+            self._remove_one(self.root / name)
+        self.paths = {n for n in self.paths if n in kept or os.path.lexists(self.root / n)}
+        self._write()
+
+    def _glob(self, pattern: str) -> list[str]:
+        matches = self.root.glob(pattern.rstrip("/"))
+        return [p.relative_to(self.root).as_posix() for p in matches if pattern.endswith("/") == p.is_dir()]
+
+    def _remove_one(self, path: Path) -> None:
+        if path.is_symlink() or path.is_file():
+            path.unlink(missing_ok=True)
+            for temp in stray_temporaries(path):
+                temp.unlink(missing_ok=True)
+        elif path.is_dir():
+            if (path / RECORD_NAME).is_file():
+                OutputRecord(path).remove()
+            remove_if_empty(path)
+        else:
+            for temp in stray_temporaries(path):
+                temp.unlink(missing_ok=True)
+
+
+def remove_if_empty(folder: Path) -> None:
+    """Remove ``folder`` if nothing is left in it (a user's file inside keeps it)."""
+    try:
+        folder.rmdir()
+    except OSError:
+        pass
+
+
+def record_tree(folder: Path) -> None:
+    """Record every file and folder now under ``folder`` in its own record (for a folder built whole in a
+    temporary place and renamed into the output)."""
+    names = [p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.name != RECORD_NAME]
+    OutputRecord(folder).claim(*names)
+
+
+def foreign_entries(root: Path) -> list[str]:
+    """Top-level names in ``root`` that its record does not list (empty for a missing folder)."""
+    if not root.is_dir():
+        return []
+    record = OutputRecord(root)
+    ours = {n.split("/")[0] for n in record.paths}
+    return sorted(p.name for p in root.iterdir() if p.name != RECORD_NAME and p.name not in ours)
