@@ -84,9 +84,16 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
 
 def write_json(path: str | os.PathLike, data: Any) -> None:
-    """Write JSON atomically, indented for people to read."""
+    """Write JSON atomically, indented for people to read; a file that already holds exactly this is left as it
+    is (a resumed run then needs no free space to restate its settings)."""
+    text = json.dumps(data, indent=2) + "\n"
+    try:
+        if Path(path).read_text() == text:
+            return
+    except (OSError, UnicodeDecodeError):
+        pass
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2) + "\n")
+        tmp.write_text(text)
 
 
 def write_bytes(path: str | os.PathLike, data: bytes) -> None:
