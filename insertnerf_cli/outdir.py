@@ -95,30 +95,41 @@ def _clean_name(name: str) -> str | None:
 
 
 class OutputRecord:
-    """The record of one output folder ``root``: the relative paths insertnerf created in it."""
+    """What command ``owner`` ("render", "train", ...) created in the output folder ``root``, relative to it.
 
-    def __init__(self, root: Path) -> None:
-        self.root = Path(root)
+    The record file keeps one list per command, so `render --overwrite` into a training run's folder leaves the
+    run's checkpoints alone: each command removes only its own outputs.
+    """
+
+    def __init__(self, root: Path, owner: str) -> None:
+        self.root, self.owner = Path(root), owner
         self.file = self.root / RECORD_NAME
-        self.paths, self.exists = self._read()
+        self._all = self._read()
+        self.paths: set[str] = set(self._all.get(owner, set()))
+        self.exists = owner in self._all  # False: outputs of a version before records may be there
 
-    def _read(self) -> tuple[set[str], bool]:
+    def _read(self) -> dict[str, set[str]]:
         try:
             data = json.loads(self.file.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            return set(), False
         except (OSError, ValueError):
-            return set(), True  # an unreadable record removes nothing (and is rewritten)
-        names = data.get("paths", []) if isinstance(data, dict) else []
-        return {n for n in map(_clean_name, names if isinstance(names, list) else []) if n}, True
+            return {}  # none yet, or unreadable: an unreadable record removes nothing and is rewritten
+        owners = data.get("owners", {}) if isinstance(data, dict) else {}
+        return {str(owner): {n for n in map(_clean_name, names) if n}
+                for owner, names in (owners.items() if isinstance(owners, dict) else []) if isinstance(names, list)}
 
     def _write(self) -> None:
-        if not self.paths:
+        self._all[self.owner] = set(self.paths)
+        self._all = {owner: names for owner, names in self._all.items() if names}
+        self.exists = self.owner in self._all
+        if not self._all:
             self.file.unlink(missing_ok=True)
-            self.exists = False
             return
-        write_json(self.file, {"kind": _RECORD_KIND, "paths": sorted(self.paths)})
-        self.exists = True
+        write_json(self.file, {"kind": _RECORD_KIND,
+                               "owners": {owner: sorted(names) for owner, names in sorted(self._all.items())}})
+
+    def owners(self) -> list[str]:
+        """The commands with outputs recorded in this folder."""
+        return sorted(self._all)
 
     def claim(self, *names: str) -> None:
         """Record ``names`` (relative to root, folders too) before creating them; creates root if needed."""
@@ -129,31 +140,34 @@ class OutputRecord:
             self._write()
 
     def remove(self, legacy: Sequence[str] = (), keep: Sequence[str] = ()) -> None:
-        """Delete the recorded paths (or, with no record, those matching the ``legacy`` glob patterns; a pattern
-        ending in "/" names folders), except those under a top-level name in ``keep``; foreign files stay."""
+        """Delete this command's recorded paths (or, with no record of it, those matching the ``legacy`` glob
+        patterns; a pattern ending in "/" names folders), except those under a top-level name in ``keep``;
+        other files, and other commands' outputs, stay."""
         names = self.paths if self.exists else {n for p in legacy for n in self._glob(p)}
+        names -= {n for other, theirs in self._all.items() if other != self.owner for n in theirs}
         kept = {n for n in names if n.split("/")[0] in keep}
         for name in sorted(names - kept, key=lambda n: (-n.count("/"), n)):  # children before their folders
-            self._remove_one(self.root / name)
+            _remove_one(self.root / name)
         self.paths = {n for n in self.paths if n in kept or os.path.lexists(self.root / n)}
-        self._write()
+        if self.root.is_dir():
+            self._write()
 
     def _glob(self, pattern: str) -> list[str]:
         matches = self.root.glob(pattern.rstrip("/"))
         return [p.relative_to(self.root).as_posix() for p in matches if pattern.endswith("/") == p.is_dir()]
 
-    def _remove_one(self, path: Path) -> None:
-        if path.is_symlink() or path.is_file():
-            path.unlink(missing_ok=True)
-            for temp in stray_temporaries(path):
-                temp.unlink(missing_ok=True)
-        elif path.is_dir():
-            if (path / RECORD_NAME).is_file():
-                OutputRecord(path).remove()
-            remove_if_empty(path)
-        else:
-            for temp in stray_temporaries(path):
-                temp.unlink(missing_ok=True)
+
+def _remove_one(path: Path) -> None:
+    """Remove one recorded path: a file (and stray temporaries of it), or a folder once it is empty (after its
+    own record's contents, when it has one)."""
+    if path.is_symlink() or path.is_file():
+        path.unlink(missing_ok=True)
+    elif path.is_dir():
+        for owner in OutputRecord(path, "").owners():
+            OutputRecord(path, owner).remove()
+        remove_if_empty(path)
+    for temp in stray_temporaries(path):
+        temp.unlink(missing_ok=True)
 
 
 def remove_if_empty(folder: Path) -> None:
@@ -164,17 +178,16 @@ def remove_if_empty(folder: Path) -> None:
         pass
 
 
-def record_tree(folder: Path) -> None:
+def record_tree(folder: Path, owner: str) -> None:
     """Record every file and folder now under ``folder`` in its own record (for a folder built whole in a
     temporary place and renamed into the output)."""
     names = [p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.name != RECORD_NAME]
-    OutputRecord(folder).claim(*names)
+    OutputRecord(folder, owner).claim(*names)
 
 
-def foreign_entries(root: Path) -> list[str]:
-    """Top-level names in ``root`` that its record does not list (empty for a missing folder)."""
+def foreign_entries(root: Path, owner: str) -> list[str]:
+    """Top-level names in ``root`` that ``owner``'s record does not list (empty for a missing folder)."""
     if not root.is_dir():
         return []
-    record = OutputRecord(root)
-    ours = {n.split("/")[0] for n in record.paths}
+    ours = {n.split("/")[0] for n in OutputRecord(root, owner).paths}
     return sorted(p.name for p in root.iterdir() if p.name != RECORD_NAME and p.name not in ours)

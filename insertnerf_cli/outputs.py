@@ -22,11 +22,12 @@ from .atomic import atomic_path, write_bytes, write_json
 from .cameras import Cameras
 from .errors import UserError
 from .outdir import OutputRecord, foreign_entries, remove_if_empty
-from .poses_io import LEGACY_OUTPUTS as POSES_LEGACY_OUTPUTS
+from .poses_io import LEGACY_OUTPUTS as POSES_LEGACY_OUTPUTS, OWNER as POSES_OWNER
 
 FRAME_DIRS = ("frames", "depth", "depth_vis")
 VIDEOS = ("video.mp4", "depth.mp4")
 CAMERAS_JSON = "cameras.json"
+OWNER = "render"  # the name of its list in an output record (outdir.py)
 STATE_FILE = "render_config.json"  # the settings the frames depend on: equal settings may resume
 POSES_DIR = "poses"  # poses pycolmap estimated for a folder of photos
 # What renders of versions without an output record wrote: the only names --overwrite removes from such a folder.
@@ -228,15 +229,15 @@ def prepare_out_dir(out_dir: Path, state: dict, overwrite: bool) -> None:
         if old is not None:
             raise UserError(f"{out_dir} already holds a render with other settings ({state_differences(old, state)}); "
                             "pass --overwrite to replace its render outputs, or choose another --out")
-        others = foreign_entries(out_dir)
+        others = foreign_entries(out_dir, OWNER)
         if others:
             raise UserError(f"{out_dir} already holds other files ({', '.join(others[:3])}); pass --overwrite to "
                             "write the render beside them (they are kept), or choose another --out")
     # Poses estimated from the very same photos stay valid whatever else changed.
     same_photos = old is not None and old.get("images") == state.get("images")
-    OutputRecord(out_dir).remove(legacy=LEGACY_OUTPUTS, keep=(POSES_DIR,) if same_photos else ())
+    OutputRecord(out_dir, OWNER).remove(legacy=LEGACY_OUTPUTS, keep=(POSES_DIR,) if same_photos else ())
     if not same_photos and (out_dir / POSES_DIR).is_dir():
-        OutputRecord(out_dir / POSES_DIR).remove(legacy=POSES_LEGACY_OUTPUTS)
+        OutputRecord(out_dir / POSES_DIR, POSES_OWNER).remove(legacy=POSES_LEGACY_OUTPUTS)
         remove_if_empty(out_dir / POSES_DIR)
 
 
@@ -257,7 +258,7 @@ def state_differences(old: dict, new: dict) -> str:
 def claim_render_outputs(out_dir: Path, frames: int) -> None:
     """Record every path the render of ``frames`` frames will create in OUT, before creating any."""
     names = [f"{d}/{frame_name(i)}" for d in FRAME_DIRS for i in range(frames)]
-    OutputRecord(out_dir).claim(*FRAME_DIRS, *names, *VIDEOS, CAMERAS_JSON, STATE_FILE)
+    OutputRecord(out_dir, OWNER).claim(*FRAME_DIRS, *names, *VIDEOS, CAMERAS_JSON, STATE_FILE)
 
 
 def write_state(out_dir: Path, state: dict) -> None:

@@ -25,6 +25,7 @@ from .cameras import Cameras
 from .errors import UserError
 from .metrics import SSIM_WINDOW, psnr, ssim
 from .outdir import OutputRecord, check_output, remove_if_empty
+from .outputs import OWNER as RENDER_OWNER
 from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, claim_render_outputs, depth_to_turbo,
                       depth_to_uint16, ffmpeg_exe, frame_name, frame_paths, prepare_out_dir, side_by_side,
                       write_cameras_json, write_frame, write_png, write_state, write_video)
@@ -189,12 +190,12 @@ def _posed_photos(scene_dir: Path, out_dir: Path, created: bool):
 
         print(f"{scene_dir} is a folder of photos without poses: estimating them with COLMAP into {poses_dir} "
               "(once; later runs reuse them)", file=sys.stderr)
-        OutputRecord(out_dir).claim(POSES_DIR)
+        OutputRecord(out_dir, RENDER_OWNER).claim(POSES_DIR)
         try:
             estimate_poses(scene_dir, poses_dir, PosesOptions(overwrite=True))
         except BaseException:
             if created:
-                OutputRecord(out_dir).remove()
+                OutputRecord(out_dir, RENDER_OWNER).remove()
                 remove_if_empty(out_dir)
             raise
     return load_scene(poses_dir)
@@ -382,7 +383,7 @@ def _prepare_side_by_sides(out_dir: Path | None, held: list[int]) -> None:
     """Remove the side-by-sides of an earlier eval (only ours) and record the ones this run writes."""
     if out_dir is None:
         return
-    record = OutputRecord(out_dir)
+    record = OutputRecord(out_dir, "eval")
     record.remove(legacy=_EVAL_LEGACY_OUTPUTS)
     record.claim(*(frame_name(i) for i in held))
 

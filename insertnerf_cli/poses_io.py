@@ -31,6 +31,7 @@ from .scenes.writers import write_nerfstudio_transforms
 MIN_IMAGES = 3
 # LLFF's habit: near/far are the 0.1 and 99.9 percentiles of the depths of the points an image sees.
 DEPTH_PERCENTILES = (0.1, 99.9)
+OWNER = "poses"  # the name of its list in an output record (outdir.py)
 _PARTIAL = ".partial-"
 # What `poses` wrote before outputs were recorded: the only names --overwrite removes from such a folder.
 LEGACY_OUTPUTS = ("transforms.json", "sparse.ply", "cameras.ply", "images/*", "images/", "colmap/database.db",
@@ -105,7 +106,7 @@ def staging_folder(out_dir: Path) -> Iterator[Path]:
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}{_PARTIAL}{os.getpid()}-", dir=out_dir.parent))
     try:
         yield tmp
-        record_tree(tmp)
+        record_tree(tmp, OWNER)
         _move_into_place(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -135,9 +136,9 @@ def _move_into_place(tmp: Path, out_dir: Path) -> None:
     if not out_dir.exists() or (out_dir.is_dir() and not any(out_dir.iterdir())):
         os.replace(tmp, out_dir)
         return
-    record = OutputRecord(out_dir)
+    record = OutputRecord(out_dir, OWNER)
     record.remove(legacy=LEGACY_OUTPUTS)
-    record.claim(*OutputRecord(tmp).paths)
+    record.claim(*OutputRecord(tmp, OWNER).paths)
     for entry in sorted(tmp.iterdir()):
         if entry.name != RECORD_NAME:
             _merge(entry, out_dir / entry.name)

@@ -117,7 +117,7 @@ def test_eval_overwrite_keeps_foreign_files(scene_and_checkpoint, tmp_path):
                  "--out", out, "--overwrite")
     assert result.exit_code == 0, result.output
     assert (out / "notes.txt").read_text() == "mine" and not (out / "99999.png").exists()
-    assert OutputRecord(out).paths == {p.name for p in out.glob("0*.png")}
+    assert OutputRecord(out, "eval").paths == {p.name for p in out.glob("0*.png")}
 
 
 # ------------------------------------------------------------------------------------------------ train
@@ -148,6 +148,18 @@ def test_train_overwrite_keeps_the_users_checkpoint_and_refuses_the_dataset(tiny
     one_line_error(CliRunner().invoke(cli, cli_args(data, tmp_path, tiny_config, "--overwrite")),
                    "contains the input dataset")
     assert snapshot(data) == before
+
+
+def test_render_into_a_run_folder_and_train_over_it_leave_each_others_files(scene_and_checkpoint, tiny_config,
+                                                                             tmp_path):
+    scene, ckpt = scene_and_checkpoint
+    data, out = trained_run(tmp_path, tmp_path / "run", tiny_config)
+    one_line_error(_render(scene, ckpt, out, "--frames", 1), "already holds other files", "--overwrite")
+    for _ in range(2):  # the second --overwrite replaces the first render, and only it
+        assert _render(scene, ckpt, out, "--frames", 1, "--overwrite").exit_code == 0
+        assert (out / "checkpoints" / "last.pt").is_file() and (out / "metrics.jsonl").is_file()
+    assert CliRunner().invoke(cli, cli_args(data, out, tiny_config, "--steps", "1", "--overwrite")).exit_code == 0
+    assert (out / "frames" / "00000.png").is_file() and (out / "video.mp4").is_file()
 
 
 def test_train_killed_before_its_first_checkpoint_starts_afresh(tiny_config, tmp_path):

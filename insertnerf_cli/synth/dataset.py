@@ -29,6 +29,7 @@ from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, render_scene
 GENERATOR_VERSION = "synth-4"
 MANIFEST = "manifest.json"
 _TEMP_PREFIX = ".tmp-"
+_OWNER = "synth"  # the name of its list in an output record (outdir.py)
 LayoutChoice = Literal["object", "forward", "360", "mixed"]
 # What datasets of versions without output records hold (the only names --overwrite removes there).
 _LEGACY_SCENE_DIRS = "scene_[0-9]*/"
@@ -151,24 +152,24 @@ def _prepare(out: Path, manifest: Manifest, overwrite: bool) -> None:
                 raise UserError(f"{out} holds a dataset made with other options or another generator version; "
                                 f"choose another folder, or pass --overwrite to replace it")
             _remove_dataset(out)
-    elif any(p for p in foreign_entries(out) if not p.startswith(_TEMP_PREFIX)):
+    elif any(p for p in foreign_entries(out, _OWNER) if not p.startswith(_TEMP_PREFIX)):
         if not overwrite:
             raise UserError(f"{out} is not empty and has no {MANIFEST}; choose an empty or new folder, "
                             f"or pass --overwrite to write into it (its other files are kept)")
         _remove_dataset(out)
     for leftover in out.glob(f"{_TEMP_PREFIX}*"):  # scenes a killed run did not finish
         shutil.rmtree(leftover, ignore_errors=True)
-    OutputRecord(out).claim(MANIFEST, *(spec.name for spec in manifest.scenes))
+    OutputRecord(out, _OWNER).claim(MANIFEST, *(spec.name for spec in manifest.scenes))
     write_json(path, ours)
 
 
 def _remove_dataset(out: Path) -> None:
     """Delete what synth wrote in ``out`` (manifest, scene folders and their files) and nothing else."""
-    record = OutputRecord(out)
+    record = OutputRecord(out, _OWNER)
     if not record.exists:  # a dataset of a version without records: its scene folders by their file names
         for scene in out.glob(_LEGACY_SCENE_DIRS.rstrip("/")):
             if scene.is_dir() and not scene.is_symlink():
-                OutputRecord(scene).remove(legacy=_LEGACY_SCENE_FILES)
+                OutputRecord(scene, _OWNER).remove(legacy=_LEGACY_SCENE_FILES)
     record.remove(legacy=(MANIFEST, _LEGACY_SCENE_DIRS))
 
 
@@ -185,7 +186,7 @@ def render_into(out: Path, spec: SceneSpec) -> RenderedScene:
             raise UserError(f"synth: {spec.name} (seed {spec.seed}, layout {spec.layout}) failed with "
                             f"{type(err).__name__}: {err}. This is a generator bug; please report it with the "
                             f"dataset's manifest.json (finished scenes are kept, re-running resumes).") from err
-        record_tree(temp)
+        record_tree(temp, _OWNER)
         os.replace(temp, out / spec.name)
         return result
     finally:
