@@ -85,11 +85,14 @@ class RenderSummary:
     seconds_per_frame: float | None
     depth_clipped: int
     wall_s: float = 0.0  # the whole command, start-up and videos included
+    resolution_asked: int | None = None  # a --resolution above the photos' size (frames never upsample)
 
     def line(self) -> str:
         speed = "" if self.seconds_per_frame is None else f", {self.seconds_per_frame:.1f} s/frame"
         kept = f" ({self.resumed} kept from the earlier run)" if self.resumed else ""
         clip = f"; {self.depth_clipped} depth pixels beyond 65.5 units were clipped" if self.depth_clipped else ""
+        if self.resolution_asked:
+            clip += f"; --resolution {self.resolution_asked} is above the photos' size, which was kept (no upsampling)"
         return (f"{self.frames} frames ({self.path}, {self.width}x{self.height}) in {self.out_dir.resolve()}: "
                 f"rendered {self.rendered}{kept}{speed}, {_duration(self.wall_s)} in total; see video.mp4, "
                 f"depth.mp4, cameras.json{clip}")
@@ -316,8 +319,10 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     rendered, resumed, seconds, clipped = _render_frames(renderer, path, out_dir, similarity.scale)
     for video, sub in zip(VIDEOS, ("frame", "depth_vis")):
         write_video(out_dir / video, [getattr(frame_paths(out_dir, i), sub) for i in range(len(path))], config.fps)
-    return RenderSummary(out_dir, path.kind, len(path), rendered, resumed, path.cameras.height, path.cameras.width,
-                         seconds / rendered if rendered else None, clipped, time.perf_counter() - started)
+    size = (path.cameras.height, path.cameras.width)
+    asked = config.resolution if config.resolution is not None and config.resolution > max(size) else None
+    return RenderSummary(out_dir, path.kind, len(path), rendered, resumed, *size,
+                         seconds / rendered if rendered else None, clipped, time.perf_counter() - started, asked)
 
 
 def _render_frames(renderer: _Renderer, path: CameraPath, out_dir: Path, scale: float) -> tuple[int, int, float, int]:
