@@ -146,8 +146,11 @@ class OutputRecord:
         names = self.paths if self.exists else {n for p in legacy for n in self._glob(p)}
         names -= {n for other, theirs in self._all.items() if other != self.owner for n in theirs}
         kept = {n for n in names if n.split("/")[0] in keep}
+        root = _resolved(self.root)
         for name in sorted(names - kept, key=lambda n: (-n.count("/"), n)):  # children before their folders
-            _remove_one(self.root / name)
+            parent = _resolved((self.root / name).parent)
+            if parent == root or root in parent.parents:  # never through a symlink that leads elsewhere
+                _remove_one(self.root / name)
         self.paths = {n for n in self.paths if n in kept or os.path.lexists(self.root / n)}
         if self.root.is_dir():
             self._write()

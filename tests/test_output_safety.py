@@ -48,6 +48,21 @@ def run(*args) -> object:
     return CliRunner().invoke(cli, [str(a) for a in args])
 
 
+# ------------------------------------------------------------------------------------------------ record
+def test_a_record_never_reaches_outside_its_folder(tmp_path):
+    outside = tmp_path / "precious"
+    outside.mkdir()
+    (outside / "a.txt").write_text("mine")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "ours.txt").write_text("ours")
+    (out / "frames").symlink_to(outside, target_is_directory=True)  # a folder of ours replaced by a link
+    (out / RECORD_NAME).write_text(json.dumps({"owners": {"render": [
+        "../precious/a.txt", str(outside / "a.txt"), "frames/a.txt", "ours.txt"]}}))
+    OutputRecord(out, "render").remove()
+    assert (outside / "a.txt").read_text() == "mine" and not (out / "ours.txt").exists()
+
+
 # ------------------------------------------------------------------------------------------------ render
 def test_render_into_or_around_its_scene_is_refused_and_the_scene_is_untouched(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
