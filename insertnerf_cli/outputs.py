@@ -21,7 +21,7 @@ from torch import Tensor
 from .atomic import atomic_path, write_bytes, write_json
 from .cameras import Cameras
 from .errors import UserError
-from .outdir import OutputRecord, foreign_entries, remove_if_empty
+from .outdir import OutputRecord, check_output, foreign_entries, remove_if_empty
 from .poses_io import LEGACY_OUTPUTS as POSES_LEGACY_OUTPUTS, OWNER as POSES_OWNER
 
 FRAME_DIRS = ("frames", "depth", "depth_vis")
@@ -280,6 +280,38 @@ def check_resumable(out_dir: Path, cameras: Cameras) -> None:
     if done and not same_cameras_as_written(out_dir / CAMERAS_JSON, cameras):
         raise UserError(f"{out_dir} holds frames of a different camera path (the scene's poses or insertnerf "
                         "changed since); pass --overwrite to render them again, or choose another --out")
+
+
+# ------------------------------------------------------------------------------------------ eval outputs
+# Side-by-sides that eval versions without an output record wrote (what --overwrite removes from such a folder).
+_EVAL_LEGACY_OUTPUTS = (_FRAME_GLOB,)
+
+
+def check_eval_outputs(scene_dir: Path, checkpoint: Path | None, json_path: Path | None, out_dir: Path | None,
+                       overwrite: bool) -> None:
+    """Refuse, before any work, eval outputs inside the inputs or not writable, and replacing an existing report
+    or side-by-sides without overwrite."""
+    inputs = [scene_dir, checkpoint]
+    if json_path is not None:
+        check_output(Path(json_path), inputs, is_dir=False, what="--json", kind="input scene or checkpoint")
+    if out_dir is not None:
+        check_output(Path(out_dir), inputs, kind="input scene or checkpoint")
+    if overwrite:
+        return
+    if json_path is not None and Path(json_path).exists():
+        raise UserError(f"{json_path} exists; pass --overwrite to replace it or choose another --json")
+    if out_dir is not None and Path(out_dir).is_dir() and any(Path(out_dir).iterdir()):
+        raise UserError(f"{out_dir} is not empty; pass --overwrite to replace the images insertnerf wrote "
+                        "there (other files are kept) or choose another --out")
+
+
+def prepare_side_by_sides(out_dir: Path | None, held: list[int]) -> None:
+    """Remove the side-by-sides of an earlier eval (only ours) and record the ones this run writes."""
+    if out_dir is None:
+        return
+    record = OutputRecord(out_dir, "eval")
+    record.remove(legacy=_EVAL_LEGACY_OUTPUTS)
+    record.claim(*(frame_name(i) for i in held))
 
 
 # Absolute colour error that maps to the top of the colour map in eval's side-by-sides: errors past a quarter of

@@ -26,9 +26,10 @@ from .errors import UserError
 from .metrics import SSIM_WINDOW, psnr, ssim
 from .outdir import OutputRecord, check_output, remove_if_empty
 from .outputs import OWNER as RENDER_OWNER
-from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, claim_render_outputs, depth_to_turbo,
-                      depth_to_uint16, ffmpeg_exe, frame_name, frame_paths, prepare_out_dir, side_by_side,
-                      write_cameras_json, write_frame, write_png, write_state, write_video)
+from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_eval_outputs, check_resumable, claim_render_outputs,
+                      depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_name, frame_paths, prepare_out_dir,
+                      prepare_side_by_sides, side_by_side, write_cameras_json, write_frame, write_png, write_state,
+                      write_video)
 from .paths import CameraPath, default_path_kind, make_path
 
 DEFAULT_FRAMES = 30
@@ -363,49 +364,19 @@ def held_out_views(scene, max_views: int | None = None) -> list[int]:
     return sorted(set(test))
 
 
-# Side-by-sides that eval versions without an output record wrote (what --overwrite removes from such a folder).
-_EVAL_LEGACY_OUTPUTS = ("[0-9][0-9][0-9][0-9][0-9].png",)
-
-
-def _check_eval_outputs(scene_dir: Path, config: EvalConfig) -> None:
-    """Refuse, before any work, outputs inside the inputs or not writable, and replacing an existing report or
-    side-by-sides without overwrite."""
-    inputs = [scene_dir, config.checkpoint]
-    if config.json_path is not None:
-        check_output(Path(config.json_path), inputs, is_dir=False, what="--json", kind="input scene or checkpoint")
-    if config.out_dir is not None:
-        check_output(Path(config.out_dir), inputs, kind="input scene or checkpoint")
-    if config.overwrite:
-        return
-    if config.json_path is not None and Path(config.json_path).exists():
-        raise UserError(f"{config.json_path} exists; pass --overwrite to replace it or choose another --json")
-    if config.out_dir is not None and Path(config.out_dir).is_dir() and any(Path(config.out_dir).iterdir()):
-        raise UserError(f"{config.out_dir} is not empty; pass --overwrite to replace the images insertnerf wrote "
-                        "there (other files are kept) or choose another --out")
-
-
-def _prepare_side_by_sides(out_dir: Path | None, held: list[int]) -> None:
-    """Remove the side-by-sides of an earlier eval (only ours) and record the ones this run writes."""
-    if out_dir is None:
-        return
-    record = OutputRecord(out_dir, "eval")
-    record.remove(legacy=_EVAL_LEGACY_OUTPUTS)
-    record.claim(*(frame_name(i) for i in held))
-
-
 def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
     """Render each held-out view from its nearest non-held-out views, score it against the photo, and write the
     side-by-sides and JSON report that ``config`` asks for."""
     from .scenes import load_scene, normalize_scene
 
-    _check_eval_outputs(Path(scene_dir), config)
+    check_eval_outputs(Path(scene_dir), config.checkpoint, config.json_path, config.out_dir, config.overwrite)
     scene, _ = normalize_scene(load_scene(Path(scene_dir)))
     held = held_out_views(scene, config.max_views)
     size = scene.size_for(config.resolution)
     if min(size) < SSIM_WINDOW:
         raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
     renderer = _Renderer(_load_model(_checkpoint_path(config.checkpoint), config.device), scene, config, size)
-    _prepare_side_by_sides(config.out_dir and Path(config.out_dir), held)
+    prepare_side_by_sides(config.out_dir and Path(config.out_dir), held)
     scores = []
     for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):
         start = time.perf_counter()
