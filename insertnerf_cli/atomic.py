@@ -43,15 +43,32 @@ def write_error(path: Path, err: OSError) -> WriteError:
                       "the same command (files finished before are kept).")
 
 
-def temp_prefix(path: Path) -> str:
+def _temp_prefix(path: Path) -> str:
     return f".{path.stem}."
 
 
 def stray_temporaries(path: Path) -> list[Path]:
-    """Temporary files atomic_path left beside ``path`` when a process was killed mid-write."""
+    """Temporary files of ``path`` that atomic_path left when its process was killed mid-write (the process id
+    in their name is gone; a live writer's file is not stray)."""
     if not path.parent.is_dir():
         return []
-    return [p for p in path.parent.glob(f"{temp_prefix(path)}*.tmp{path.suffix}") if p.is_file()]
+    stray = []
+    for temp in path.parent.glob(f"{_temp_prefix(path)}*.tmp{path.suffix}"):
+        pid = temp.name[len(_temp_prefix(path)):].split("-")[0]
+        if pid.isdigit() and not process_alive(int(pid)) and temp.is_file():
+            stray.append(temp)
+    return stray
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (another user's counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 @contextmanager
@@ -66,7 +83,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     tmp_path: Path | None = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path), suffix=f".tmp{path.suffix}", dir=path.parent)
+        for stray in stray_temporaries(path):  # left by a killed writer of this same file
+            stray.unlink(missing_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f"{_temp_prefix(path)}{os.getpid()}-", suffix=f".tmp{path.suffix}",
+                                   dir=path.parent)
         os.close(fd)
         tmp_path = Path(tmp)
         # mkstemp makes the file private (0600); give it the permissions a plain open() would have.

@@ -193,4 +193,5 @@ def foreign_entries(root: Path, owner: str) -> list[str]:
     if not root.is_dir():
         return []
     ours = {n.split("/")[0] for n in OutputRecord(root, owner).paths}
+    ours |= {t.name for n in ours for t in stray_temporaries(root / n)}
     return sorted(p.name for p in root.iterdir() if p.name != RECORD_NAME and p.name not in ours)

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 import torch
 
+from .atomic import process_alive
 from .cameras import Cameras
 from .errors import UserError
 from .outdir import RECORD_NAME, OutputRecord, check_output as check_output_path, record_tree
@@ -116,18 +117,8 @@ def remove_stale_staging(out_dir: Path) -> None:
     """Remove temporary folders of ``out_dir`` left by runs that were killed (their process is gone)."""
     for leftover in out_dir.parent.glob(f".{out_dir.name}{_PARTIAL}*"):
         pid = leftover.name[len(f".{out_dir.name}{_PARTIAL}"):].split("-")[0]
-        if pid.isdigit() and not _alive(int(pid)):
+        if pid.isdigit() and not process_alive(int(pid)):
             shutil.rmtree(leftover, ignore_errors=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True  # someone else's process
-    return True
 
 
 def _move_into_place(tmp: Path, out_dir: Path) -> None:

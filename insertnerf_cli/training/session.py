@@ -140,7 +140,7 @@ def save(session: Session, path: Path, elapsed_s: float) -> None:
     except WriteError as err:
         kept = (f"{session.files.last} of step {session.saved_step} is kept" if session.saved_step is not None
                 else "no checkpoint of this run had been written yet")
-        raise WriteError(f"{err} Training stopped at step {session.step}; {kept}.") from None
+        raise WriteError(f"{err} Training stopped at step {session.step}; {kept}: continue with --resume.") from None
 
 
 def _seed_everything(seed: int) -> None:
