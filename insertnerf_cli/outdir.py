@@ -188,6 +188,31 @@ def record_tree(folder: Path, owner: str) -> None:
     OutputRecord(folder, owner).claim(*names)
 
 
+def move_into(source: Path, target: Path, owner: str) -> None:
+    """Make the folder ``source`` (built elsewhere, with its own record) the output ``target``: a rename when
+    ``target`` is new or empty, else its entries move in one by one and its record joins target's. Files at the
+    same names are replaced; anything else in ``target`` stays."""
+    if not target.exists() or (target.is_dir() and not any(target.iterdir())):
+        os.replace(source, target)
+        return
+    OutputRecord(target, owner).claim(*OutputRecord(source, owner).paths)
+    for entry in sorted(source.iterdir()):
+        if entry.name != RECORD_NAME:
+            _merge(entry, target / entry.name)
+
+
+def _merge(source: Path, target: Path) -> None:
+    """Move ``source`` to ``target``, into an existing folder entry by entry."""
+    if target.is_dir() and not target.is_symlink() and source.is_dir():
+        for child in sorted(source.iterdir()):
+            _merge(child, target / child.name)
+    elif target.is_dir():
+        raise UserError(f"cannot write {target}: a folder that is not insertnerf's is in the way; move it away "
+                        "and re-run.")
+    else:
+        os.replace(source, target)
+
+
 def foreign_entries(root: Path, owner: str) -> list[str]:
     """Top-level names in ``root`` that ``owner``'s record does not list (empty for a missing folder)."""
     if not root.is_dir():

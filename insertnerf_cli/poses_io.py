@@ -23,7 +23,7 @@ import torch
 from .atomic import process_alive
 from .cameras import Cameras
 from .errors import UserError
-from .outdir import RECORD_NAME, OutputRecord, check_output as check_output_path, record_tree
+from .outdir import OutputRecord, check_output as check_output_path, move_into, record_tree
 from .preview import write_camera_frustums, write_point_cloud
 from .scenes.base import SceneError
 from .scenes.images import IMAGE_EXTENSIONS, exif_orientation, find_images, read_rgb
@@ -122,29 +122,11 @@ def remove_stale_staging(out_dir: Path) -> None:
 
 
 def _move_into_place(tmp: Path, out_dir: Path) -> None:
-    """Make ``tmp`` the output: a rename when ``out_dir`` is new or empty, else a replacement of the files
-    insertnerf wrote there before (recorded, or the legacy names) by the new ones; other files stay."""
-    if not out_dir.exists() or (out_dir.is_dir() and not any(out_dir.iterdir())):
-        os.replace(tmp, out_dir)
-        return
-    record = OutputRecord(out_dir, OWNER)
-    record.remove(legacy=LEGACY_OUTPUTS)
-    record.claim(*OutputRecord(tmp, OWNER).paths)
-    for entry in sorted(tmp.iterdir()):
-        if entry.name != RECORD_NAME:
-            _merge(entry, out_dir / entry.name)
-
-
-def _merge(source: Path, target: Path) -> None:
-    """Move ``source`` to ``target``, into an existing folder entry by entry."""
-    if target.is_dir() and not target.is_symlink() and source.is_dir():
-        for child in sorted(source.iterdir()):
-            _merge(child, target / child.name)
-    elif target.is_dir():
-        raise UserError(f"cannot write {target}: a folder that is not insertnerf's is in the way; move it away "
-                        "and re-run.")
-    else:
-        os.replace(source, target)
+    """Make ``tmp`` the output: the files insertnerf wrote in ``out_dir`` before (recorded, or the legacy
+    names) are replaced by the new ones; other files stay."""
+    if out_dir.exists():
+        OutputRecord(out_dir, OWNER).remove(legacy=LEGACY_OUTPUTS)
+    move_into(tmp, out_dir, OWNER)
 
 
 def read_inputs(images_dir: Path, upright_dir: Path) -> InputImages:

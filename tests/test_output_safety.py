@@ -202,6 +202,7 @@ def test_synth_overwrite_keeps_foreign_files(tmp_path):
     assert (out / "notes.txt").read_text() == "mine" and (out / "scene_99999" / "x.txt").read_text() == "mine"
     assert (out / "scene_00000" / "my_labels.json").is_file()  # kept inside our folder, beside the new files
     assert json.loads((out / "manifest.json").read_text())["options"]["seed"] == 1
+    assert json.loads((out / "scene_00000" / "scene.json").read_text())["spec"]["seed"] == 1  # rendered anew
 
 
 # ------------------------------------------------------------------------------------------------ poses

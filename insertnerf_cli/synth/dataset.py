@@ -21,19 +21,20 @@ from typing import Iterator, Literal
 
 from ..atomic import write_error, write_json
 from ..errors import UserError
-from ..outdir import OutputRecord, check_output, foreign_entries, record_tree
+from ..outdir import OutputRecord, check_output, foreign_entries, move_into, record_tree
 from .capture import CaptureOptions
 from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, render_scene
 
 # Bump when a change makes the same seed and options give other pixels.
 GENERATOR_VERSION = "synth-4"
 MANIFEST = "manifest.json"
+SCENE_FILE = "scene.json"  # written last into a scene's temporary folder: a scene folder with it is finished
 _TEMP_PREFIX = ".tmp-"
 _OWNER = "synth"  # the name of its list in an output record (outdir.py)
 LayoutChoice = Literal["object", "forward", "360", "mixed"]
 # What datasets of versions without output records hold (the only names --overwrite removes there).
 _LEGACY_SCENE_DIRS = "scene_[0-9]*/"
-_LEGACY_SCENE_FILES = ("*/r_[0-9]*.png", "depth/*/r_[0-9]*.png", "transforms_*.json", "scene.json", "depth/*/",
+_LEGACY_SCENE_FILES = ("*/r_[0-9]*.png", "depth/*/r_[0-9]*.png", "transforms_*.json", SCENE_FILE, "depth/*/",
                        "*/")
 
 
@@ -128,7 +129,7 @@ def build_dataset(out_dir: str | os.PathLike, options: SynthOptions, workers: in
     out = Path(out_dir)
     manifest = Manifest(GENERATOR_VERSION, options, tuple(options.spec(i) for i in range(options.scenes)))
     _prepare(out, manifest, overwrite)
-    pending = [s for s in manifest.scenes if not (out / s.name).is_dir()]
+    pending = [s for s in manifest.scenes if not (out / s.name / SCENE_FILE).is_file()]
     start = time.perf_counter()
     views = sum(result.views for result in _run(out, pending, workers, progress, total=len(manifest.scenes)))
     elapsed = time.perf_counter() - start
@@ -187,7 +188,7 @@ def render_into(out: Path, spec: SceneSpec) -> RenderedScene:
                             f"{type(err).__name__}: {err}. This is a generator bug; please report it with the "
                             f"dataset's manifest.json (finished scenes are kept, re-running resumes).") from err
         record_tree(temp, _OWNER)
-        os.replace(temp, out / spec.name)
+        move_into(temp, out / spec.name, _OWNER)  # a plain rename unless a user's file kept the old folder
         return result
     finally:
         shutil.rmtree(temp, ignore_errors=True)
