@@ -65,6 +65,8 @@ def save_checkpoint(path: str | Path, model: nn.Module, model_config: ModelConfi
         model_config: the config the model was built from; stored as JSON.
     Returns:
         the path written.
+    Raises:
+        WriteError: the disk is full or the folder not writable (a previous file at ``path`` is kept).
     """
     payload: dict[str, Any] = {
         "format": CHECKPOINT_FORMAT,
@@ -83,8 +85,10 @@ def save_checkpoint(path: str | Path, model: nn.Module, model_config: ModelConfi
             "best_val_psnr": None if train_state.best_val_psnr is None else float(train_state.best_val_psnr),
         }
     path = Path(path)
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    with atomic_path(path) as tmp, open(tmp, "wb") as handle:
+        # Through a Python file, a full disk surfaces as an OSError (behind torch's RuntimeError), which
+        # atomic_path turns into a one-line WriteError; the previous checkpoint under ``path`` is kept.
+        torch.save(payload, handle)
     return path
 
 

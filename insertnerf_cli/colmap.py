@@ -117,7 +117,8 @@ class PosesResult:
     def summary(self) -> str:
         total = len(self.registered) + len(self.unregistered)
         return (f"{len(self.registered)}/{total} images registered, {self.num_points} points, mean reprojection "
-                f"error {self.mean_reprojection_error:.2f} px; scene written to {self.scene_dir}")
+                f"error {self.mean_reprojection_error:.2f} px, {sum(t.seconds for t in self.stages):.0f} s in total; "
+                f"scene written to {Path(self.scene_dir).resolve()}")
 
 
 def _stderr(message: str) -> None:

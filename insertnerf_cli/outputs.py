@@ -1,7 +1,9 @@
-"""What `insertnerf render` writes, each file through a temporary name and a rename (atomic.py):
+"""What `insertnerf render` writes, each file through a temporary name and a rename (atomic.py), each path
+recorded in OUT/.insertnerf-outputs.json before it is made (outdir.py: what --overwrite may remove):
 
     OUT/frames/00000.png      RGB, 8 bit
     OUT/depth/00000.png       uint16 millimetres in the user's scene units (value / 1000 = depth), 0 = invalid
+                              (opacity below 0.5, or not finite)
     OUT/depth_vis/00000.png   the depth as a turbo colour map (near = red, far = blue, invalid = black)
     OUT/video.mp4, depth.mp4  H.264 yuv420p through imageio-ffmpeg, assembled from the PNGs
     OUT/cameras.json          nerfstudio-style transforms of the rendered path (OpenGL c2w) with the depth scale
@@ -9,8 +11,6 @@
 from __future__ import annotations
 
 import json
-import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -18,15 +18,25 @@ from typing import Sequence
 import numpy as np
 from torch import Tensor
 
-from .atomic import atomic_path, write_json
+from .atomic import atomic_path, write_bytes, write_json
 from .cameras import Cameras
 from .errors import UserError
+from .outdir import OutputRecord, check_output, foreign_entries, remove_if_empty
+from .poses_io import LEGACY_OUTPUTS as POSES_LEGACY_OUTPUTS, OWNER as POSES_OWNER
 
 FRAME_DIRS = ("frames", "depth", "depth_vis")
 VIDEOS = ("video.mp4", "depth.mp4")
 CAMERAS_JSON = "cameras.json"
+OWNER = "render"  # the name of its list in an output record (outdir.py)
 STATE_FILE = "render_config.json"  # the settings the frames depend on: equal settings may resume
 POSES_DIR = "poses"  # poses pycolmap estimated for a folder of photos
+# What renders of versions without an output record wrote: the only names --overwrite removes from such a folder.
+_FRAME_GLOB = "[0-9][0-9][0-9][0-9][0-9].png"
+LEGACY_OUTPUTS = (*(f"{d}/{_FRAME_GLOB}" for d in FRAME_DIRS), *(f"{d}/" for d in FRAME_DIRS), *VIDEOS,
+                  CAMERAS_JSON, STATE_FILE)
+# A PNG ends with this IEND chunk; a file cut short by a crash or power loss lacks it.
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 # Depth PNGs store millimetres of the user's unit, as nerfstudio's depth files do.
 DEPTH_UNIT_SCALE = 1e-3
 _UINT16_MAX = np.iinfo(np.uint16).max
@@ -44,7 +54,22 @@ class FramePaths:
     depth_vis: Path
 
     def all_exist(self) -> bool:
-        return self.frame.is_file() and self.depth.is_file() and self.depth_vis.is_file()
+        """Whether all three files are complete PNGs (a zero-byte or truncated one means: render again)."""
+        return all(is_complete_png(p) for p in (self.frame, self.depth, self.depth_vis))
+
+
+def is_complete_png(path: Path) -> bool:
+    """A cheap check that ``path`` is a whole PNG: its signature and its closing IEND chunk (16 bytes read)."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(len(_PNG_SIGNATURE))
+            handle.seek(0, 2)
+            if handle.tell() < len(_PNG_SIGNATURE) + len(_PNG_END):
+                return False
+            handle.seek(-len(_PNG_END), 2)
+            return head == _PNG_SIGNATURE and handle.read() == _PNG_END
+    except OSError:
+        return False
 
 
 def frame_name(index: int) -> str:
@@ -86,8 +111,8 @@ def write_png(path: Path, image: np.ndarray) -> None:
     """Write a uint8 [H, W, 3] or uint16 [H, W] PNG atomically (imageio keeps uint16 unchanged)."""
     import imageio.v3 as iio
 
-    with atomic_path(path) as tmp:
-        iio.imwrite(tmp, image, extension=".png")
+    # Encoded in memory, so a full disk fails in one plain write (atomic.py makes it a one-line error).
+    write_bytes(path, iio.imwrite("<bytes>", image, extension=".png"))
 
 
 def depth_to_uint16(depth: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, int]:
@@ -195,24 +220,50 @@ def same_cameras_as_written(path: Path, cameras: Cameras) -> bool:
 
 # ------------------------------------------------------------------------------------------ output folder
 def prepare_out_dir(out_dir: Path, state: dict, overwrite: bool) -> None:
-    """Create OUT, resume a run with the same state, or refuse to mix with a different run (unless overwrite)."""
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UserError(f"--out {out_dir} is a file; choose a folder")
-    state_file = out_dir / STATE_FILE
-    old = read_state(state_file)
+    """Check OUT: resume a run with the same state, refuse to mix with a different run or to write among other
+    files (unless overwrite), and with overwrite remove the earlier render (only what insertnerf wrote)."""
+    old = read_state(out_dir / STATE_FILE)
     if old == state and not overwrite:
         return
-    ours = [*FRAME_DIRS, *VIDEOS, CAMERAS_JSON, STATE_FILE]
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
-        what = "a render with other settings" if old is not None else "other files"
-        raise UserError(f"{out_dir} already holds {what}; pass --overwrite to replace its render outputs, "
-                        "or choose another --out")
-    for name in ours:
-        target = out_dir / name
-        shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
-    if old is None or old.get("images") != state.get("images"):
-        shutil.rmtree(out_dir / POSES_DIR, ignore_errors=True)  # poses of other photos
-    write_json(state_file, state)
+    if not overwrite:
+        if old is not None:
+            raise UserError(f"{out_dir} already holds a render with other settings ({state_differences(old, state)}); "
+                            "pass --overwrite to replace its render outputs, or choose another --out")
+        others = foreign_entries(out_dir, OWNER)
+        if others:
+            raise UserError(f"{out_dir} already holds other files ({', '.join(others[:3])}); pass --overwrite to "
+                            "write the render beside them (they are kept), or choose another --out")
+    # Poses estimated from the very same photos stay valid whatever else changed.
+    same_photos = old is not None and old.get("images") == state.get("images")
+    OutputRecord(out_dir, OWNER).remove(legacy=LEGACY_OUTPUTS, keep=(POSES_DIR,) if same_photos else ())
+    if not same_photos and (out_dir / POSES_DIR).is_dir():
+        OutputRecord(out_dir / POSES_DIR, POSES_OWNER).remove(legacy=POSES_LEGACY_OUTPUTS)
+        remove_if_empty(out_dir / POSES_DIR)
+
+
+def state_differences(old: dict, new: dict) -> str:
+    """The settings that differ between two render states, e.g. "frames 2 -> 3; resolution 16 -> 8"."""
+    names = {"checkpoint_sha256": "checkpoint", "images": "photos (names, sizes or times)"}
+    changed = [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+
+    def shown(value: object) -> str:
+        text = repr(value)
+        return text if len(text) <= 24 else text[:20] + "..."
+
+    parts = [f"{names[k]} changed" if k in names else f"{k} {shown(old.get(k))} -> {shown(new.get(k))}"
+             for k in changed]
+    return "; ".join(parts) or "unknown"
+
+
+def claim_render_outputs(out_dir: Path, frames: int) -> None:
+    """Record every path the render of ``frames`` frames will create in OUT, before creating any."""
+    names = [f"{d}/{frame_name(i)}" for d in FRAME_DIRS for i in range(frames)]
+    OutputRecord(out_dir, OWNER).claim(*FRAME_DIRS, *names, *VIDEOS, CAMERAS_JSON, STATE_FILE)
+
+
+def write_state(out_dir: Path, state: dict) -> None:
+    """Record the settings of this render (once its inputs are ready, so a failed start leaves none behind)."""
+    write_json(out_dir / STATE_FILE, state)
 
 
 def read_state(state_file: Path) -> dict | None:
@@ -229,6 +280,38 @@ def check_resumable(out_dir: Path, cameras: Cameras) -> None:
     if done and not same_cameras_as_written(out_dir / CAMERAS_JSON, cameras):
         raise UserError(f"{out_dir} holds frames of a different camera path (the scene's poses or insertnerf "
                         "changed since); pass --overwrite to render them again, or choose another --out")
+
+
+# ------------------------------------------------------------------------------------------ eval outputs
+# Side-by-sides that eval versions without an output record wrote (what --overwrite removes from such a folder).
+_EVAL_LEGACY_OUTPUTS = (_FRAME_GLOB,)
+
+
+def check_eval_outputs(scene_dir: Path, checkpoint: Path | None, json_path: Path | None, out_dir: Path | None,
+                       overwrite: bool) -> None:
+    """Refuse, before any work, eval outputs inside the inputs or not writable, and replacing an existing report
+    or side-by-sides without overwrite."""
+    inputs = [scene_dir, checkpoint]
+    if json_path is not None:
+        check_output(Path(json_path), inputs, is_dir=False, what="--json", kind="input scene or checkpoint")
+    if out_dir is not None:
+        check_output(Path(out_dir), inputs, kind="input scene or checkpoint")
+    if overwrite:
+        return
+    if json_path is not None and Path(json_path).exists():
+        raise UserError(f"{json_path} exists; pass --overwrite to replace it or choose another --json")
+    if out_dir is not None and Path(out_dir).is_dir() and any(Path(out_dir).iterdir()):
+        raise UserError(f"{out_dir} is not empty; pass --overwrite to replace the images insertnerf wrote "
+                        "there (other files are kept) or choose another --out")
+
+
+def prepare_side_by_sides(out_dir: Path | None, held: list[int]) -> None:
+    """Remove the side-by-sides of an earlier eval (only ours) and record the ones this run writes."""
+    if out_dir is None:
+        return
+    record = OutputRecord(out_dir, "eval")
+    record.remove(legacy=_EVAL_LEGACY_OUTPUTS)
+    record.claim(*(frame_name(i) for i in held))
 
 
 # Absolute colour error that maps to the top of the colour map in eval's side-by-sides: errors past a quarter of

@@ -24,8 +24,11 @@ from .atomic import write_json
 from .cameras import Cameras
 from .errors import UserError
 from .metrics import SSIM_WINDOW, psnr, ssim
-from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, depth_to_turbo, depth_to_uint16, ffmpeg_exe,
-                      frame_paths, prepare_out_dir, side_by_side, write_cameras_json, write_frame, write_png,
+from .outdir import OutputRecord, check_output, remove_if_empty
+from .outputs import OWNER as RENDER_OWNER
+from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_eval_outputs, check_resumable, claim_render_outputs,
+                      depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_name, frame_paths, prepare_out_dir,
+                      prepare_side_by_sides, side_by_side, write_cameras_json, write_frame, write_png, write_state,
                       write_video)
 from .paths import CameraPath, default_path_kind, make_path
 
@@ -82,13 +85,28 @@ class RenderSummary:
     width: int
     seconds_per_frame: float | None
     depth_clipped: int
+    wall_s: float = 0.0  # the whole command, start-up and videos included
+    resolution_asked: int | None = None  # a --resolution above the photos' size (frames never upsample)
 
     def line(self) -> str:
         speed = "" if self.seconds_per_frame is None else f", {self.seconds_per_frame:.1f} s/frame"
         kept = f" ({self.resumed} kept from the earlier run)" if self.resumed else ""
         clip = f"; {self.depth_clipped} depth pixels beyond 65.5 units were clipped" if self.depth_clipped else ""
-        return (f"{self.frames} frames ({self.path}, {self.width}x{self.height}) in {self.out_dir}: rendered "
-                f"{self.rendered}{kept}{speed}; see video.mp4, depth.mp4, cameras.json{clip}")
+        if self.resolution_asked:
+            clip += f"; --resolution {self.resolution_asked} is above the photos' size, which was kept (no upsampling)"
+        return (f"{self.frames} frames ({self.path}, {self.width}x{self.height}) in {self.out_dir.resolve()}: "
+                f"rendered {self.rendered}{kept}{speed}, {_duration(self.wall_s)} in total; see video.mp4, "
+                f"depth.mp4, cameras.json{clip}")
+
+
+def _duration(seconds: float) -> str:
+    """"42 s", "3 min 05 s" or "1 h 02 min"."""
+    seconds = round(seconds)
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"
 
 
 @dataclass(frozen=True)
@@ -164,16 +182,26 @@ def _is_scene(folder: Path) -> bool:
     return detect_format(folder) is not None
 
 
-def _posed_photos(scene_dir: Path, poses_dir: Path):
-    """The scene pycolmap makes of a plain photo folder, estimated once into ``poses_dir`` and reused after."""
+def _posed_photos(scene_dir: Path, out_dir: Path, created: bool):
+    """The scene pycolmap makes of a plain photo folder, estimated once into OUT/poses and reused after.
+
+    A failure leaves no trace in an OUT this run ``created`` (no record, no folder)."""
     from .scenes import load_scene
 
+    poses_dir = out_dir / POSES_DIR
     if not (poses_dir / "transforms.json").is_file():
         from .colmap import PosesOptions, estimate_poses
 
         print(f"{scene_dir} is a folder of photos without poses: estimating them with COLMAP into {poses_dir} "
               "(once; later runs reuse them)", file=sys.stderr)
-        estimate_poses(scene_dir, poses_dir, PosesOptions(overwrite=True))
+        OutputRecord(out_dir, RENDER_OWNER).claim(POSES_DIR)
+        try:
+            estimate_poses(scene_dir, poses_dir, PosesOptions(overwrite=True))
+        except BaseException:
+            if created:
+                OutputRecord(out_dir, RENDER_OWNER).remove()
+                remove_if_empty(out_dir)
+            raise
     return load_scene(poses_dir)
 
 
@@ -263,22 +291,28 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     """Render a camera path of the scene in ``scene_dir`` into ``out_dir`` (see outputs.py for the files).
 
     Raises:
-        UserError: no ffmpeg, unreadable scene, failed pose estimation, bad checkpoint, or an output folder
-            holding a different run without ``config.overwrite``.
+        UserError: no ffmpeg, unreadable scene, failed pose estimation, bad checkpoint, an output folder inside
+            the scene (or holding it) or not writable, or one holding a different run without ``config.overwrite``.
     """
     from .scenes import load_scene
 
+    started = time.perf_counter()
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
+    check_output(out_dir, [scene_dir], kind="input scene")
     ffmpeg_exe()  # before any long work: the videos need it
     checkpoint = _checkpoint_path(config.checkpoint)
     images = None if _is_scene(scene_dir) else _image_fingerprint(scene_dir)
     # A bad scene, path or checkpoint fails here, before OUT is touched.
     planned = _plan(load_scene(scene_dir), config) if images is None else None
     model = _load_model(checkpoint, config.device)
-    prepare_out_dir(out_dir, _render_state(scene_dir, checkpoint, config, images), config.overwrite)
-    scene, similarity, path = planned or _plan(_posed_photos(scene_dir, out_dir / POSES_DIR), config)
+    state = _render_state(scene_dir, checkpoint, config, images)
+    created = not out_dir.exists()
+    prepare_out_dir(out_dir, state, config.overwrite)
+    scene, similarity, path = planned or _plan(_posed_photos(scene_dir, out_dir, created), config)
     user_cams = similarity.inverse().apply_cameras(path.cameras)
     check_resumable(out_dir, user_cams)
+    claim_render_outputs(out_dir, len(path))
+    write_state(out_dir, state)
     write_cameras_json(out_dir / CAMERAS_JSON, user_cams, path.near / similarity.scale, path.far / similarity.scale,
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               "normalization": similarity.to_json()})
@@ -286,8 +320,10 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     rendered, resumed, seconds, clipped = _render_frames(renderer, path, out_dir, similarity.scale)
     for video, sub in zip(VIDEOS, ("frame", "depth_vis")):
         write_video(out_dir / video, [getattr(frame_paths(out_dir, i), sub) for i in range(len(path))], config.fps)
-    return RenderSummary(out_dir, path.kind, len(path), rendered, resumed, path.cameras.height, path.cameras.width,
-                         seconds / rendered if rendered else None, clipped)
+    size = (path.cameras.height, path.cameras.width)
+    asked = config.resolution if config.resolution is not None and config.resolution > max(size) else None
+    return RenderSummary(out_dir, path.kind, len(path), rendered, resumed, *size,
+                         seconds / rendered if rendered else None, clipped, time.perf_counter() - started, asked)
 
 
 def _render_frames(renderer: _Renderer, path: CameraPath, out_dir: Path, scale: float) -> tuple[int, int, float, int]:
@@ -295,6 +331,9 @@ def _render_frames(renderer: _Renderer, path: CameraPath, out_dir: Path, scale: 
     todo = [i for i in range(len(path)) if not frame_paths(out_dir, i).all_exist()]
     resumed, seconds, clipped = len(path) - len(todo), 0.0, 0
     near, far = float(path.near.min()), float(path.far.max())
+    if not todo:  # no bar: a finished one printed at start and again at close reads as two in a log
+        print(f"all {len(path)} frames are already rendered in {out_dir}; assembling the videos", file=sys.stderr)
+        return 0, resumed, seconds, clipped
     bar = tqdm(total=len(path), initial=resumed, unit="frame", desc="rendering", file=sys.stderr, dynamic_ncols=True)
     with bar:
         for i in todo:
@@ -325,28 +364,19 @@ def held_out_views(scene, max_views: int | None = None) -> list[int]:
     return sorted(set(test))
 
 
-def _check_eval_outputs(config: EvalConfig) -> None:
-    """Refuse, before any work, to replace an existing report or side-by-sides without overwrite."""
-    if config.overwrite:
-        return
-    if config.json_path is not None and Path(config.json_path).exists():
-        raise UserError(f"{config.json_path} exists; pass --overwrite to replace it or choose another --json")
-    if config.out_dir is not None and Path(config.out_dir).is_dir() and any(Path(config.out_dir).iterdir()):
-        raise UserError(f"{config.out_dir} is not empty; pass --overwrite to replace its images or choose another --out")
-
-
 def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
     """Render each held-out view from its nearest non-held-out views, score it against the photo, and write the
     side-by-sides and JSON report that ``config`` asks for."""
     from .scenes import load_scene, normalize_scene
 
-    _check_eval_outputs(config)
+    check_eval_outputs(Path(scene_dir), config.checkpoint, config.json_path, config.out_dir, config.overwrite)
     scene, _ = normalize_scene(load_scene(Path(scene_dir)))
     held = held_out_views(scene, config.max_views)
     size = scene.size_for(config.resolution)
     if min(size) < SSIM_WINDOW:
         raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
     renderer = _Renderer(_load_model(_checkpoint_path(config.checkpoint), config.device), scene, config, size)
+    prepare_side_by_sides(config.out_dir and Path(config.out_dir), held)
     scores = []
     for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):
         start = time.perf_counter()
@@ -358,7 +388,7 @@ def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
         scores.append(ViewScore(index, scene.names[index], psnr(render, truth), ssim(render, truth), tuple(refs),
                                 time.perf_counter() - start))
         if config.out_dir is not None:
-            write_png(Path(config.out_dir) / f"{index:05d}.png", side_by_side(render, truth))
+            write_png(Path(config.out_dir) / frame_name(index), side_by_side(render, truth))
     report = EvalReport(Path(scene_dir), size[0], size[1], float(np.mean([s.psnr for s in scores])),
                         float(np.mean([s.ssim for s in scores])), tuple(scores))
     if config.json_path is not None:

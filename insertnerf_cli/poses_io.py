@@ -1,5 +1,11 @@
 """Files around `insertnerf poses` (no pycolmap here): checking the input images and the output folder, the
-temporary folder renamed into place, and the scene files written from a finished model."""
+temporary folder moved into place, and the scene files written from a finished model.
+
+The scene is built in ``.<OUT>.partial-<pid>-*`` beside the output. On success it becomes the output, or, when
+the output exists (--overwrite), the earlier outputs insertnerf recorded there are removed and the new files
+moved in: a user's own files in the output folder stay. A partial folder whose process is gone (kill -9) is
+removed by the next run.
+"""
 from __future__ import annotations
 
 import os
@@ -14,8 +20,10 @@ import cv2
 import numpy as np
 import torch
 
+from .atomic import process_alive
 from .cameras import Cameras
 from .errors import UserError
+from .outdir import OutputRecord, check_output as check_output_path, move_into, record_tree
 from .preview import write_camera_frustums, write_point_cloud
 from .scenes.base import SceneError
 from .scenes.images import IMAGE_EXTENSIONS, exif_orientation, find_images, read_rgb
@@ -24,6 +32,11 @@ from .scenes.writers import write_nerfstudio_transforms
 MIN_IMAGES = 3
 # LLFF's habit: near/far are the 0.1 and 99.9 percentiles of the depths of the points an image sees.
 DEPTH_PERCENTILES = (0.1, 99.9)
+OWNER = "poses"  # the name of its list in an output record (outdir.py)
+_PARTIAL = ".partial-"
+# What `poses` wrote before outputs were recorded: the only names --overwrite removes from such a folder.
+LEGACY_OUTPUTS = ("transforms.json", "sparse.ply", "cameras.ply", "images/*", "images/", "colmap/database.db",
+                  "colmap/sparse/0/*", "colmap/sparse/0/", "colmap/sparse/", "colmap/")
 
 
 @dataclass(frozen=True)
@@ -77,43 +90,43 @@ class WrittenScene:
 
 
 def check_output(images_dir: Path, out_dir: Path, overwrite: bool) -> None:
-    """Refuse an output folder that exists (without ``overwrite``) or that would swallow the input images."""
-    images, out = images_dir.resolve(), out_dir.resolve()
-    if images == out or out in images.parents:
-        raise UserError(f"the output folder {out_dir} contains the input images {images_dir}; "
-                        "choose another --out (replacing it would delete your photos).")
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out_dir} exists and is not a folder; choose another --out.")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise UserError(f"{out_dir} already exists; pass --overwrite to replace it, or choose another --out.")
+    """Refuse an output folder that is, holds or lies inside the input images, cannot be written, or holds
+    files already (without ``overwrite``)."""
+    check_output_path(out_dir, [images_dir], kind="input images")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+        raise UserError(f"{out_dir} already exists; pass --overwrite to replace the scene files insertnerf wrote "
+                        "there (other files are kept), or choose another --out.")
 
 
 @contextmanager
 def staging_folder(out_dir: Path) -> Iterator[Path]:
-    """Yield an empty temporary folder beside ``out_dir``; on success it replaces ``out_dir``, else it is removed."""
+    """Yield an empty temporary folder beside ``out_dir``; on success its files go to ``out_dir``, and the
+    temporary folder is removed either way."""
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+    remove_stale_staging(out_dir)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}{_PARTIAL}{os.getpid()}-", dir=out_dir.parent))
     try:
         yield tmp
-        _swap_into_place(tmp, out_dir)
+        record_tree(tmp, OWNER)
+        _move_into_place(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _swap_into_place(tmp: Path, out_dir: Path) -> None:
-    """Rename ``tmp`` onto ``out_dir``; an existing ``out_dir`` is set aside first and deleted only afterwards."""
-    if not out_dir.exists():
-        os.replace(tmp, out_dir)
-        return
-    old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.parent))
-    os.replace(out_dir, old / out_dir.name)
-    try:
-        os.replace(tmp, out_dir)
-    except OSError:
-        os.replace(old / out_dir.name, out_dir)  # put the previous output back
-        raise
-    finally:
-        shutil.rmtree(old, ignore_errors=True)
+def remove_stale_staging(out_dir: Path) -> None:
+    """Remove temporary folders of ``out_dir`` left by runs that were killed (their process is gone)."""
+    for leftover in out_dir.parent.glob(f".{out_dir.name}{_PARTIAL}*"):
+        pid = leftover.name[len(f".{out_dir.name}{_PARTIAL}"):].split("-")[0]
+        if pid.isdigit() and not process_alive(int(pid)):
+            shutil.rmtree(leftover, ignore_errors=True)
+
+
+def _move_into_place(tmp: Path, out_dir: Path) -> None:
+    """Make ``tmp`` the output: the files insertnerf wrote in ``out_dir`` before (recorded, or the legacy
+    names) are replaced by the new ones; other files stay."""
+    if out_dir.exists():
+        OutputRecord(out_dir, OWNER).remove(legacy=LEGACY_OUTPUTS)
+    move_into(tmp, out_dir, OWNER)
 
 
 def read_inputs(images_dir: Path, upright_dir: Path) -> InputImages:

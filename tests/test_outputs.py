@@ -1,5 +1,6 @@
 """Render outputs: uint16 depth round trip, turbo previews, H.264 videos, cameras.json, atomic writes."""
 import json
+from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
@@ -73,11 +74,11 @@ def _read_video(path):
 def test_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
     target = tmp_path / "frames" / "00000.png"
 
-    def half_write(path, image, **kwargs):
-        open(path, "wb").write(b"\x89PNG half")  # some bytes reach the disk, then the user presses Ctrl-C
+    def half_write(path, data):
+        open(path, "wb").write(data[:10])  # some bytes reach the disk, then the user presses Ctrl-C
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(iio, "imwrite", half_write)
+    monkeypatch.setattr(Path, "write_bytes", half_write)
     with pytest.raises(KeyboardInterrupt):
         write_png(target, np.zeros((2, 2, 3), np.uint8))
     assert list(target.parent.iterdir()) == []

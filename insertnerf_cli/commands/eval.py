@@ -36,5 +36,7 @@ def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, 
     report = evaluate_scene(scene_dir, config)
     for view in report.views:
         click.echo(f"{view.name}: PSNR {view.psnr:.2f} dB, SSIM {view.ssim:.4f}")
+    written = [f"{what} in {path.resolve()}" for what, path in (("report", json_path), ("side-by-sides", out_dir))
+               if path is not None]
     click.echo(f"mean over {len(report.views)} held-out views ({report.width}x{report.height}): "
-               f"PSNR {report.psnr:.2f} dB, SSIM {report.ssim:.4f}")
+               f"PSNR {report.psnr:.2f} dB, SSIM {report.ssim:.4f}" + "".join(f"; {w}" for w in written))

@@ -17,7 +17,8 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
         click.option("--views", type=click.IntRange(min=1), default=DEFAULT_VIEWS, show_default=True,
                      help="Reference views per rendered image (the nearest ones)."),
         click.option("--resolution", type=click.IntRange(min=0), default=DEFAULT_RESOLUTION, show_default=True,
-                     help="Long side of the rendered images in pixels; 0 = the photos' own size."),
+                     help="Long side of the rendered images in pixels; 0 = the photos' own size. Never upsamples: "
+                     "a larger value gives the photos' size."),
         click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                      help="Generator weights from `insertnerf train` (default: the bundled pretrained ones)."),
         click.option("--chunk", type=click.IntRange(min=1), default=DEFAULT_CHUNK, show_default=True,
@@ -31,7 +32,8 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 @click.command("render")
 @click.argument("scene_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
-              help="Output folder (frames/, depth/, depth_vis/, video.mp4, depth.mp4, cameras.json).")
+              help="Output folder (frames/, depth/, depth_vis/, video.mp4, depth.mp4, cameras.json); not inside "
+                   "SCENE_DIR. --overwrite removes only what render wrote there.")
 @click.option("--path", "path_kind", type=click.Choice(PATH_KINDS),
               help="Camera path; default: orbit for object-centric/360 captures, spiral for forward-facing ones; "
                    "input re-renders the input poses.")

@@ -68,4 +68,5 @@ def result_summary(result: TrainResult) -> str:
     val = "n/a" if result.val_psnr is None else f"{result.val_psnr:.2f} dB"
     speed = "" if result.rays_per_s is None else f", {result.rays_per_s:,.0f} rays/s"
     return (f"{result.stopped}: step {result.step} ({result.steps_this_session} this session, "
-            f"{result.elapsed_s / 60:.1f} min in total{speed}); validation PSNR {val}; checkpoint {result.checkpoint}")
+            f"{result.elapsed_s / 60:.1f} min in total{speed}); validation PSNR {val}; checkpoint "
+            f"{Path(result.checkpoint).resolve()}")

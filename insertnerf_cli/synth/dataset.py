@@ -3,7 +3,9 @@
 ``OUT_DIR/manifest.json`` records the generator version, the options and the :class:`SceneSpec` of every
 scene before anything is rendered. Each scene is rendered into a hidden temporary folder and renamed to
 ``scene_NNNNN`` only when complete, so a killed run leaves no folder that looks finished; running again with
-the same options skips finished scenes, deletes leftover temporary folders and renders the rest.
+the same options skips finished scenes, deletes leftover temporary folders and renders the rest. The manifest
+and scene folders are recorded in ``OUT_DIR/.insertnerf-outputs.json`` before they are made, each scene's files
+in the scene's own record, so --overwrite removes only what synth wrote (outdir.py).
 """
 from __future__ import annotations
 
@@ -17,16 +19,23 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterator, Literal
 
-from ..atomic import write_json
+from ..atomic import write_error, write_json
 from ..errors import UserError
+from ..outdir import OutputRecord, check_output, foreign_entries, move_into, record_tree
 from .capture import CaptureOptions
 from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, render_scene
 
 # Bump when a change makes the same seed and options give other pixels.
 GENERATOR_VERSION = "synth-4"
 MANIFEST = "manifest.json"
+SCENE_FILE = "scene.json"  # written last into a scene's temporary folder: a scene folder with it is finished
 _TEMP_PREFIX = ".tmp-"
+_OWNER = "synth"  # the name of its list in an output record (outdir.py)
 LayoutChoice = Literal["object", "forward", "360", "mixed"]
+# What datasets of versions without output records hold (the only names --overwrite removes there).
+_LEGACY_SCENE_DIRS = "scene_[0-9]*/"
+_LEGACY_SCENE_FILES = ("*/r_[0-9]*.png", "depth/*/r_[0-9]*.png", "transforms_*.json", SCENE_FILE, "depth/*/",
+                       "*/")
 
 
 @dataclass(frozen=True)
@@ -120,7 +129,7 @@ def build_dataset(out_dir: str | os.PathLike, options: SynthOptions, workers: in
     out = Path(out_dir)
     manifest = Manifest(GENERATOR_VERSION, options, tuple(options.spec(i) for i in range(options.scenes)))
     _prepare(out, manifest, overwrite)
-    pending = [s for s in manifest.scenes if not (out / s.name).is_dir()]
+    pending = [s for s in manifest.scenes if not (out / s.name / SCENE_FILE).is_file()]
     start = time.perf_counter()
     views = sum(result.views for result in _run(out, pending, workers, progress, total=len(manifest.scenes)))
     elapsed = time.perf_counter() - start
@@ -130,8 +139,7 @@ def build_dataset(out_dir: str | os.PathLike, options: SynthOptions, workers: in
 
 def _prepare(out: Path, manifest: Manifest, overwrite: bool) -> None:
     """Create ``out`` or check it holds this very dataset; remove leftovers of interrupted runs."""
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out} exists and is not a folder; choose another output folder")
+    check_output(out, [], what="the output folder")
     out.mkdir(parents=True, exist_ok=True)
     path = out / MANIFEST
     ours = manifest.to_json()
@@ -145,22 +153,25 @@ def _prepare(out: Path, manifest: Manifest, overwrite: bool) -> None:
                 raise UserError(f"{out} holds a dataset made with other options or another generator version; "
                                 f"choose another folder, or pass --overwrite to replace it")
             _remove_dataset(out)
-    elif any(p for p in out.iterdir() if not p.name.startswith(_TEMP_PREFIX)):
+    elif any(p for p in foreign_entries(out, _OWNER) if not p.startswith(_TEMP_PREFIX)):
         if not overwrite:
             raise UserError(f"{out} is not empty and has no {MANIFEST}; choose an empty or new folder, "
-                            f"or pass --overwrite to write into it")
+                            f"or pass --overwrite to write into it (its other files are kept)")
         _remove_dataset(out)
     for leftover in out.glob(f"{_TEMP_PREFIX}*"):  # scenes a killed run did not finish
         shutil.rmtree(leftover, ignore_errors=True)
+    OutputRecord(out, _OWNER).claim(MANIFEST, *(spec.name for spec in manifest.scenes))
     write_json(path, ours)
 
 
 def _remove_dataset(out: Path) -> None:
-    """Delete what a synth dataset consists of (scene folders, temporaries, manifest) and nothing else."""
-    for p in out.iterdir():
-        if p.is_dir() and (p.name.startswith("scene_") or p.name.startswith(_TEMP_PREFIX)):
-            shutil.rmtree(p)
-    (out / MANIFEST).unlink(missing_ok=True)
+    """Delete what synth wrote in ``out`` (manifest, scene folders and their files) and nothing else."""
+    record = OutputRecord(out, _OWNER)
+    if not record.exists:  # a dataset of a version without records: its scene folders by their file names
+        for scene in out.glob(_LEGACY_SCENE_DIRS.rstrip("/")):
+            if scene.is_dir() and not scene.is_symlink():
+                OutputRecord(scene, _OWNER).remove(legacy=_LEGACY_SCENE_FILES)
+    record.remove(legacy=(MANIFEST, _LEGACY_SCENE_DIRS))
 
 
 def render_into(out: Path, spec: SceneSpec) -> RenderedScene:
@@ -170,11 +181,14 @@ def render_into(out: Path, spec: SceneSpec) -> RenderedScene:
     try:
         try:
             result = render_scene(spec, temp)
+        except OSError as err:  # disk full, no permission: not a generator bug
+            raise write_error(out / spec.name, err) from None
         except Exception as err:  # a generator bug: name the scene so it can be rebuilt and reported
             raise UserError(f"synth: {spec.name} (seed {spec.seed}, layout {spec.layout}) failed with "
                             f"{type(err).__name__}: {err}. This is a generator bug; please report it with the "
                             f"dataset's manifest.json (finished scenes are kept, re-running resumes).") from err
-        os.replace(temp, out / spec.name)
+        record_tree(temp, _OWNER)
+        move_into(temp, out / spec.name, _OWNER)  # a plain rename unless a user's file kept the old folder
         return result
     finally:
         shutil.rmtree(temp, ignore_errors=True)

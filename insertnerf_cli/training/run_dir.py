@@ -5,19 +5,24 @@
     RUN_DIR/checkpoints/last.pt     the latest checkpoint (weights, model config, optimizer, step, RNG)
     RUN_DIR/checkpoints/best.pt     the checkpoint with the best validation PSNR so far
     RUN_DIR/checkpoints/config.json the model and training configs, for people and scripts to read
+
+Each is recorded in RUN_DIR/.insertnerf-outputs.json before it is written (outdir.py), and --overwrite removes
+only those: a user's own file in RUN_DIR or RUN_DIR/checkpoints stays.
 """
 from __future__ import annotations
 
 import json
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..atomic import atomic_path, write_json
+from ..atomic import atomic_path, write_error, write_json
 from ..config import config_to_json
 from ..errors import UserError
+from ..outdir import OutputRecord, check_output
 from .config import TrainConfig
+
+_OWNER = "train"  # the name of its list in an output record (outdir.py)
 
 
 @dataclass(frozen=True)
@@ -50,32 +55,48 @@ class RunFiles:
 
     def owned(self) -> list[Path]:
         """Everything a run writes (what --overwrite deletes; other files in RUN_DIR are left alone)."""
-        return [self.metrics, self.splits, self.checkpoints]
+        return [self.metrics, self.splits, self.checkpoints, self.last, self.best, self.config]
+
+    def has_checkpoint(self) -> bool:
+        return self.last.is_file() or self.best.is_file()
+
+    def has_run(self) -> bool:
+        """Whether a run wrote anything here (a record, or files of versions before records)."""
+        return OutputRecord(self.root, _OWNER).exists or any(p.exists() for p in self.owned())
 
 
-def check_run_dir(files: RunFiles, resume: bool, overwrite: bool) -> None:
-    """Refuse to mix runs: a used RUN_DIR needs --resume or --overwrite, and --resume needs a checkpoint."""
+def check_run_dir(files: RunFiles, dataset_dir: Path, resume: bool, overwrite: bool) -> None:
+    """Refuse to mix runs: a RUN_DIR with a checkpoint needs --resume or --overwrite, and --resume needs one.
+
+    A run folder killed before its first checkpoint holds nothing to resume: a plain run starts it afresh.
+    The folder must not hold or lie inside the dataset, and must be writable.
+    """
     if resume and overwrite:
         raise UserError("--resume and --overwrite contradict each other: pick one.")
+    check_output(files.root, [dataset_dir], kind="input dataset")
     if resume:
         if not files.last.is_file():
-            raise UserError(f"nothing to resume: {files.last} does not exist; start a new run without --resume.")
+            raise UserError(f"nothing to resume: {files.last} does not exist; start a new run without --resume "
+                            "(the same command without it).")
         return
-    used = [p for p in files.owned() if p.exists()]
-    if files.root.exists() and not files.root.is_dir():
-        raise UserError(f"--out {files.root} is a file; pass a folder for the run.")
-    if used and not overwrite:
+    if files.has_checkpoint() and not overwrite:
         raise UserError(f"{files.root} already holds a training run; continue it with --resume, replace it with "
                         "--overwrite, or pass another --out.")
 
 
 def clear_run(files: RunFiles) -> None:
-    """Delete the files of a previous run in RUN_DIR (only ours), for --overwrite."""
-    for path in files.owned():
-        if path.is_dir():
-            shutil.rmtree(path)
-        elif path.exists():
-            path.unlink()
+    """Delete the files of a previous run in RUN_DIR (only those insertnerf wrote), for --overwrite."""
+    OutputRecord(files.root, _OWNER).remove(legacy=_LEGACY_OUTPUTS)
+
+
+def claim_run(files: RunFiles) -> None:
+    """Record every file of the run before writing any."""
+    OutputRecord(files.root, _OWNER).claim(*(p.relative_to(files.root).as_posix() for p in files.owned()))
+
+
+# What runs of versions without an output record wrote (the only names --overwrite removes there).
+_LEGACY_OUTPUTS = ("metrics.jsonl", "splits.json", "checkpoints/last.pt", "checkpoints/best.pt",
+                   "checkpoints/config.json", "checkpoints/")
 
 
 def write_run_config(files: RunFiles, config: TrainConfig, dataset_dir: Path) -> None:
@@ -85,8 +106,11 @@ def write_run_config(files: RunFiles, config: TrainConfig, dataset_dir: Path) ->
 
 def append_metrics(files: RunFiles, record: dict[str, Any]) -> None:
     """Append one JSON line and flush, so a crash loses at most the line being written."""
-    with open(files.metrics, "a", encoding="utf-8") as handle:
-        handle.write(json.dumps(record) + "\n")
+    try:
+        with open(files.metrics, "a", encoding="utf-8") as handle:
+            handle.write(json.dumps(record) + "\n")
+    except OSError as err:
+        raise write_error(files.metrics, err) from None
 
 
 def truncate_metrics(files: RunFiles, step: int) -> None:

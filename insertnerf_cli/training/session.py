@@ -11,6 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ..atomic import WriteError
 from ..checkpoint import Checkpoint, TrainState, load_weights, read_checkpoint, save_checkpoint
 from ..config import config_to_json
 from ..errors import UserError
@@ -22,8 +23,8 @@ from .data import (ImageCache, TrainScene, ViewDraw, check_view_counts, find_sce
                    validation_draws)
 from .distributed import DistContext
 from .rng import capture_rng, restore_rng
-from .run_dir import (RunFiles, check_run_dir, clear_run, read_splits, truncate_metrics, write_run_config,
-                      write_splits)
+from .run_dir import (RunFiles, check_run_dir, claim_run, clear_run, read_splits, truncate_metrics,
+                      write_run_config, write_splits)
 
 Say = Callable[[str], None]
 _BYTES_PER_MB = 1 << 20
@@ -68,7 +69,7 @@ class Objective(nn.Module):
 def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: DistContext,
                  resume: bool, overwrite: bool, say: Say) -> Session:
     """Check the run folder, read the scenes, build (or restore) model, optimizer and generators."""
-    check_run_dir(files, resume, overwrite)  # every rank checks before any rank writes
+    check_run_dir(files, dataset_dir, resume, overwrite)  # every rank checks before any rank writes
     distributed.barrier(ctx)
     checkpoint = read_checkpoint(files.last) if resume else None
     if checkpoint is not None:
@@ -134,7 +135,12 @@ def save(session: Session, path: Path, elapsed_s: float) -> None:
     state = TrainState(step=session.step, elapsed_s=elapsed_s, optimizer=session.optimizer.state_dict(),
                        rng=capture_rng(session.data_rng, session.ctx.device),
                        train_config=json.dumps(config_to_json(session.config)), best_val_psnr=session.best_val_psnr)
-    save_checkpoint(path, session.model, session.config.model, state)
+    try:
+        save_checkpoint(path, session.model, session.config.model, state)
+    except WriteError as err:
+        kept = (f"{session.files.last} of step {session.saved_step} is kept" if session.saved_step is not None
+                else "no checkpoint of this run had been written yet")
+        raise WriteError(f"{err} Training stopped at step {session.step}; {kept}: continue with --resume.") from None
 
 
 def _seed_everything(seed: int) -> None:
@@ -181,8 +187,11 @@ def _split(files: RunFiles, scenes: list[TrainScene], config: TrainConfig, resum
 def _prepare_files(session: Session, dataset_dir: Path, resume: bool, overwrite: bool,
                    names: tuple[list[str], list[str]]) -> None:
     files = session.files
-    if overwrite:
+    if overwrite or (not resume and files.has_run()):
+        if not overwrite:  # check_run_dir let it through: a run killed before its first checkpoint
+            session.say(f"{files.root} holds a run stopped before its first checkpoint: starting it afresh.")
         clear_run(files)
+    claim_run(files)
     files.checkpoints.mkdir(parents=True, exist_ok=True)
     if resume:
         truncate_metrics(files, session.step)
