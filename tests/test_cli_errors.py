@@ -213,6 +213,8 @@ def test_unreadable_inputs_are_one_line_and_skipped_in_datasets(tmp_path: Path) 
         assert expected in lines[0], (name, got)
         if name == "photos":  # click's own check of IMAGES_DIR: a usage error
             assert got["code"] == 2 and "is not readable" in lines[0]
+        elif name == "out_read_only":  # refused by the output check before any work (outdir.check_writable)
+            assert got["code"] == 1 and "no permission to write" in lines[0] and "permissions" in lines[0]
         else:
             assert got["code"] == 1 and "permission denied" in lines[0] and "check its permissions" in lines[0]
     assert results["dataset"]["found"] == ["good"]
