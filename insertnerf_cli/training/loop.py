@@ -259,8 +259,9 @@ def _checkpoint(s: Session, elapsed: float) -> None:
 
 
 def _progress_bar(s: Session) -> tqdm:
+    # A run already at --steps gets no bar: a finished one prints at creation and again at close (two in a log).
     return tqdm(total=s.config.steps, initial=s.step, unit="step", desc="training", file=sys.stderr,
-                disable=not s.ctx.is_main, dynamic_ncols=True, smoothing=0.05)
+                disable=not s.ctx.is_main or s.step >= s.config.steps, dynamic_ncols=True, smoothing=0.05)
 
 
 def _printer(main: bool) -> Callable[[str], None]:
