@@ -6,14 +6,15 @@
     python3 bench/hostile.py --installed      # run `insertnerf` from PATH instead of this checkout's code
 
 It builds its own tiny inputs (a `synth` dataset of 32 px scenes, a 2-step checkpoint of a tiny model, 16 photos
-of a ray-cast room), then runs the cases of bench/hostile_cases.py. What a case must show comes from the developer
-brief and issue 12, not from today's code: bad input ends with a short error (one line, progress bars aside) and
-an exit status of 1-125; valid input exits 0; Ctrl-C exits non-zero; no step prints a Python traceback; every
-input file and every file of the user's put into an output folder is still there, unchanged, and nothing was
-written inside an input; no temporary or partial file is left. Read-only and unreadable cases run as the
-unprivileged user 65534 (setpriv) because root ignores permissions; disk-full cases mount a small tmpfs.
-The last line reads `hostile: N cases, tracebacks T, data lost L, wrong exit E`; the exit status is 1 when any
-case failed any check.
+of a ray-cast room), then runs the cases of bench/hostile_cases.py and bench/hostile_inputs.py. What a case must
+show comes from the developer brief and issue 12, not from today's code: bad input ends with a short error (at
+most 3 lines besides progress bars: the error and a hint) and an exit status of 1-125; valid input exits 0;
+Ctrl-C exits non-zero; no step prints a Python traceback; every input file and every file of the user's put into
+an output folder is still there, unchanged, and nothing was written inside an input; no temporary or partial
+file is left. Read-only and unreadable cases run as the unprivileged user 65534 (setpriv) because root ignores
+permissions; disk-full cases mount a small tmpfs; both are skipped when not run as root. The last line reads
+`hostile: N cases, tracebacks T, data lost L, wrong exit E`, with the other problems, passes and skips after it;
+the exit status is 1 when any case failed any check.
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ sys.path.insert(0, str(ROOT))  # this checkout's insertnerf_cli, for the fixture
 import hostile_cases  # noqa: E402,F401  (registers its cases; bench/ is on sys.path when run as a script)
 import hostile_inputs  # noqa: E402,F401
 from hostile_kit import CASES, NOBODY, STEP_TIMEOUT_S, Fixtures, Plan, Workspace, run_insertnerf  # noqa: E402
+
 TRACEBACK = ("Traceback (most recent call last)", "Fatal Python error", "Check failure stack trace")
 # Temporary names the tool uses (atomic.py, poses_io.py, synth/dataset.py) and common ones it might.
 STRAY = re.compile(r"\.tmp|\.partial|\.old-|\.part$|~$")
