@@ -19,7 +19,14 @@ _DISK_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 
 
 class WriteError(UserError):
-    """A file could not be written (the previous file under that name, if any, is kept)."""
+    """A file could not be written (the previous file under that name, if any, is kept).
+
+    ``problem`` is the short reason ("disk full", "permission denied", ...) for callers that phrase their own line.
+    """
+
+    def __init__(self, message: str, problem: str = "cannot write") -> None:
+        super().__init__(message)
+        self.problem = problem
 
 
 def _os_error(err: BaseException | None) -> OSError | None:
@@ -37,10 +44,10 @@ def write_error(path: Path, err: OSError) -> WriteError:
     """The one-line error for a failed write of ``path``."""
     if err.errno in _DISK_FULL:
         return WriteError(f"disk full at {path}: free space and re-run the same command; the files finished "
-                          "before (and any earlier version of this one) are kept.")
+                          "before (and any earlier version of this one) are kept.", "disk full")
     reason = err.strerror or type(err).__name__
     return WriteError(f"cannot write {path} ({reason}); check the folder's permissions and free space, then re-run "
-                      "the same command (files finished before are kept).")
+                      "the same command (files finished before are kept).", f"cannot write ({reason})")
 
 
 def _temp_prefix(path: Path) -> str:

@@ -138,9 +138,11 @@ def save(session: Session, path: Path, elapsed_s: float) -> None:
     try:
         save_checkpoint(path, session.model, session.config.model, state)
     except WriteError as err:
-        kept = (f"{session.files.last} of step {session.saved_step} is kept" if session.saved_step is not None
+        # One short line: the path once, then what survived and how to go on.
+        kept = (f"last.pt of step {session.saved_step} is kept" if session.saved_step is not None
                 else "no checkpoint of this run had been written yet")
-        raise WriteError(f"{err} Training stopped at step {session.step}; {kept}: continue with --resume.") from None
+        raise WriteError(f"{err.problem} while saving {path} at step {session.step}; training stopped and {kept}: "
+                         "free space, then continue with --resume.", err.problem) from None
 
 
 def _seed_everything(seed: int) -> None:
