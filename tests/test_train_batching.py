@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 import torch
 import torch.multiprocessing as mp
+from click.testing import CliRunner
 
 from insertnerf_cli.checkpoint import read_checkpoint
+from insertnerf_cli.cli import cli
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import InsertNeRF
 from insertnerf_cli.scenes import write_blender_transforms
@@ -23,7 +25,8 @@ from insertnerf_cli.training.batches import (BatchObjective, DrawGenerators, che
 from insertnerf_cli.training.data import ImageCache, find_scenes
 from insertnerf_cli.training.device_data import load_training_set
 from insertnerf_cli.training.session import Objective
-from test_train import SIZE, TINY, orbit_cameras, small, write_scene
+from test_train import (SIZE, TINY, cli_args, one_line_error, orbit_cameras, small, tiny_config,  # noqa: F401
+                        write_scene)
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 COLOURS = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0)]
@@ -131,12 +134,25 @@ def test_two_plus_two_resumed_steps_equal_four_with_several_scenes(dataset, tmp_
 
 
 def test_a_set_larger_than_the_budget_streams_and_trains_the_same(dataset, tmp_path, capsys):
+    """Budget 0: every step reads its views from disk, one step ahead; 2 + 2 resumed streamed steps equal 4
+    resident ones (the checkpoint keeps the generator state from before the look-ahead draw)."""
     cpu = torch.device("cpu")
-    resident = train(dataset, tmp_path / "resident", small(steps=3, batch_scenes=2), cpu)
-    streamed = train(dataset, tmp_path / "streamed", small(steps=3, batch_scenes=2, data_budget_mb=0), cpu)
+    resident = train(dataset, tmp_path / "resident", small(steps=4, batch_scenes=2), cpu)
+    train(dataset, tmp_path / "streamed", small(steps=2, batch_scenes=2, data_budget_mb=0), cpu)
     assert "reading them from disk each step" in capsys.readouterr().err
-    assert streamed.step == 3
+    streamed = train(dataset, tmp_path / "streamed", small(steps=4, batch_scenes=2, data_budget_mb=0), cpu,
+                     resume=True)
+    assert streamed.step == 4
     assert_same_training(resident.checkpoint, streamed.checkpoint)
+
+
+def test_batch_scene_settings_that_cannot_work_are_one_line(dataset, tiny_config, tmp_path):
+    odd = CliRunner().invoke(cli, cli_args(dataset, tmp_path / "a", tiny_config, "--batch-scenes", "3",
+                                           "--steps", "1"))
+    assert "multiple of --batch-scenes" in one_line_error(odd)
+    many = CliRunner().invoke(cli, cli_args(dataset, tmp_path / "b", tiny_config, "--batch-scenes", "4",
+                                            "--rays", "64", "--steps", "1"))
+    assert "lower --batch-scenes" in one_line_error(many)
 
 
 def test_a_non_finite_loss_between_logs_stops_before_any_save(dataset, tmp_path):

@@ -6,6 +6,7 @@ trip; a second generator on the host picks the image-size group (only when the s
 """
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -155,3 +156,49 @@ class BatchObjective(nn.Module):
 
 def _values(terms: LossTerms) -> tuple[Tensor, ...]:
     return (terms.total, terms.mse_coarse, terms.mse_fine, terms.backbone, terms.dynamic, terms.psnr_fine)
+
+
+class StepStream:
+    """The steps' draws and batches, in order.
+
+    With the images on the device a step is drawn and gathered when asked for. Streamed from disk, the next
+    step is drawn one step ahead and its images read on a worker thread (into the stream's own ImageCache)
+    while the current step computes: a prefetch of one step. The generator state a checkpoint needs is the one
+    before that look-ahead draw, so --resume makes the same draw again.
+    """
+
+    def __init__(self, data: TrainingSet, usable: list[int], generators: DrawGenerators, batch_scenes: int,
+                 num_views: int, rays: int, cache_bytes: int) -> None:
+        self.data, self.usable, self.generators = data, usable, generators
+        self.shape = (batch_scenes, num_views, rays)
+        self._cache = ImageCache(cache_bytes)
+        self._pool = None if data.resident else ThreadPoolExecutor(max_workers=1)
+        self._pending: tuple[dict[str, Tensor], StepDraw, Future] | None = None
+
+    def next(self) -> tuple[StepDraw, TrainBatch]:
+        if self._pool is None:
+            draw = self._draw()
+            return draw, make_step_batch(self.data, draw, self._cache)
+        if self._pending is None:
+            self._pending = self._prefetch()
+        _, draw, batch = self._pending
+        self._pending = self._prefetch()
+        return draw, batch.result()
+
+    def state(self) -> dict[str, Tensor]:
+        """The generator state that reproduces the next step."""
+        return self._pending[0] if self._pending is not None else self.generators.state()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def _draw(self) -> StepDraw:
+        batch_scenes, num_views, rays = self.shape
+        return draw_step(self.data, self.usable, self.generators, batch_scenes, num_views, rays)
+
+    def _prefetch(self) -> tuple[dict[str, Tensor], StepDraw, Future]:
+        assert self._pool is not None
+        before = {k: v.clone() for k, v in self.generators.state().items()}
+        draw = self._draw()
+        return before, draw, self._pool.submit(make_step_batch, self.data, draw, self._cache)

@@ -18,7 +18,6 @@ from ..errors import UserError
 from ..model import LossTerms
 from . import distributed
 from .config import TrainConfig, with_device_defaults
-from .batches import draw_step, make_step_batch
 from .data import make_batch
 from .run_dir import RunFiles, append_metrics
 from .session import Session, open_session, save, set_learning_rates
@@ -143,7 +142,11 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, dev
     try:
         config = with_device_defaults(config, ctx.device)
         session = open_session(Path(dataset_dir), RunFiles(Path(run_dir)), config, ctx, resume, overwrite, say)
-        return _run(session)
+        try:
+            return _run(session)
+        finally:
+            if session.stream is not None:
+                session.stream.close()
     finally:
         distributed.stop(ctx)
 
@@ -203,10 +206,9 @@ def _stop_reason(s: Session, elapsed: float, interrupted: bool) -> str | None:
 
 def _train_step(s: Session, divergence: _Divergence) -> LossTerms:
     """One optimisation step on B scenes, with no host sync: the loss terms stay on the device."""
-    cfg = s.config
-    scenes = cfg.batch_scenes or 1
-    draw = draw_step(s.data, s.usable_groups, s.generators, scenes, cfg.model.num_views, cfg.rays)
-    batch = make_step_batch(s.data, draw, s.cache)
+    assert s.stream is not None
+    scenes = s.config.batch_scenes or 1
+    draw, batch = s.stream.next()
     set_learning_rates(s)
     s.optimizer.zero_grad(set_to_none=True)
     terms = s.objective(batch.views, batch.rays, batch.target_rgb, scenes)

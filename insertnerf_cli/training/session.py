@@ -19,7 +19,7 @@ from ..model import InsertNeRF, LossTerms, SourceViews
 from ..rays import Rays
 from . import distributed
 from .config import DATA_FIELDS, TrainConfig, model_differences
-from .batches import BatchObjective, DrawGenerators, check_batch_scenes
+from .batches import BatchObjective, DrawGenerators, StepStream, check_batch_scenes
 from .data import (ImageCache, TrainScene, ViewDraw, check_view_counts, find_scenes, split_scenes,
                    validation_draws)
 from .device_data import TrainingSet, load_training_set
@@ -48,7 +48,6 @@ class Session:
     cache: ImageCache
     say: Say
     data: TrainingSet  # the training scenes as tensors (on the device when they fit the budget)
-    usable_groups: list[int]  # size groups with at least batch_scenes scenes
     generators: DrawGenerators  # the step draws (data_rng serves the legacy draw_training_views)
     step: int = 0
     elapsed_before: float = 0.0  # training seconds of earlier sessions of this run
@@ -56,6 +55,7 @@ class Session:
     saved_step: int | None = None  # step of the newest checkpoint on disk
     start_step: int = 0
     objective: nn.Module | None = None  # BatchObjective(model), wrapped in DistributedDataParallel under torchrun
+    stream: StepStream | None = None  # the step batches, made after the generators are restored
 
 
 class Objective(nn.Module):
@@ -93,11 +93,13 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
     session = Session(config, files, ctx, model, optimizer, np.random.default_rng([config.seed, ctx.rank]),
                       train, val_source, validation_draws(val_source, config.model.num_views, config.val_rays,
                                                           config.seed),
-                      ImageCache(config.cache_mb * _BYTES_PER_MB), say, data, usable,
+                      ImageCache(config.cache_mb * _BYTES_PER_MB), say, data,
                       DrawGenerators(ctx.device, config.seed, ctx.rank))
     if checkpoint is not None:
         _restore(session, checkpoint)
     session.objective = distributed.wrap(BatchObjective(model), ctx)  # after restoring: DDP broadcasts rank 0
+    session.stream = StepStream(data, usable, session.generators, config.batch_scenes, config.model.num_views,
+                                config.rays, config.cache_mb * _BYTES_PER_MB)
     if ctx.is_main:
         _prepare_files(session, dataset_dir, resume, overwrite, ([s.name for s in train], [s.name for s in val]))
     distributed.barrier(ctx)
@@ -142,7 +144,7 @@ def set_learning_rates(session: Session) -> float:
 def save(session: Session, path: Path, elapsed_s: float) -> None:
     """A checkpoint of the session at its current (completed) step, after ``elapsed_s`` of training in total."""
     state = TrainState(step=session.step, elapsed_s=elapsed_s, optimizer=session.optimizer.state_dict(),
-                       rng={**capture_rng(session.data_rng, session.ctx.device), **session.generators.state()},
+                       rng={**capture_rng(session.data_rng, session.ctx.device), **draw_state(session)},
                        train_config=json.dumps(config_to_json(session.config)), best_val_psnr=session.best_val_psnr)
     try:
         save_checkpoint(path, session.model, session.config.model, state)
@@ -152,6 +154,11 @@ def save(session: Session, path: Path, elapsed_s: float) -> None:
                 else "no checkpoint of this run had been written yet")
         raise WriteError(f"{err.problem} while saving {path} at step {session.step}; training stopped and {kept}: "
                          "free space, then continue with --resume.", err.problem) from None
+
+
+def draw_state(session: Session) -> dict[str, Tensor]:
+    """The draw generators' state that reproduces the session's next step (a streamed set draws ahead)."""
+    return session.stream.state() if session.stream is not None else session.generators.state()
 
 
 def _seed_everything(seed: int) -> None:
