@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 import torch
@@ -90,8 +91,7 @@ def draw_step(data: TrainingSet, usable: list[int], gens: DrawGenerators, batch_
     scenes = torch.randperm(len(g.scenes), generator=gen, device=dev)[:batch_scenes]  # [B]
     n = g.n_train[scenes]  # [B]
     target = (torch.rand(batch_scenes, generator=gen, device=dev) * n).long().clamp(max=n - 1)  # [B]
-    factors = torch.tensor(sampling.pool_factors, device=dev)
-    probs = torch.tensor(sampling.pool_probs, device=dev)
+    factors, probs = _pool_rule(sampling, dev)
     factor = factors[torch.multinomial(probs, batch_scenes, replacement=True, generator=gen)]
     pool = torch.minimum(factor * num_views, torch.full_like(factor, sampling.max_pool))
     pool = torch.minimum(pool.clamp(min=num_views), n - 1)  # [B] pool sizes, as sample_training_views
@@ -106,6 +106,13 @@ def draw_step(data: TrainingSet, usable: list[int], gens: DrawGenerators, batch_
     pixels = torch.randint(g.height * g.width, (batch_scenes, rays // batch_scenes), generator=gen, device=dev)
     base = g.offsets[scenes]
     return StepDraw(usable[index], scenes, base + target, base[:, None] + chosen, pixels)
+
+
+@lru_cache(maxsize=8)
+def _pool_rule(sampling: ViewSampling, device: torch.device) -> tuple[Tensor, Tensor]:
+    """The pool factors and their probabilities on the device, made once: a copy per step would be a sync."""
+    return (torch.tensor(sampling.pool_factors, device=device),
+            torch.tensor(sampling.pool_probs, dtype=torch.float32, device=device))
 
 
 def make_step_batch(data: TrainingSet, draw: StepDraw, cache: ImageCache) -> TrainBatch:

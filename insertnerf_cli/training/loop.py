@@ -194,8 +194,14 @@ def _run(s: Session) -> TrainResult:
 
 
 def _stop_reason(s: Session, elapsed: float, interrupted: bool) -> str | None:
-    """Why the loop should stop now, agreed by every rank (None = go on)."""
+    """Why the loop should stop now, agreed by every rank (None = go on).
+
+    Under torchrun the ranks agree at log steps only (and at the first step): agreeing is a collective, a host
+    sync, so a time budget or Ctrl-C there takes effect within --log-every steps.
+    """
     over_time = s.config.minutes is not None and elapsed >= 60.0 * s.config.minutes
+    if s.ctx.distributed and s.step % s.config.log_every and s.step != s.start_step:
+        over_time = interrupted = False
     over_time, interrupted = distributed.any_rank([over_time, interrupted], s.ctx)
     if interrupted:
         return "interrupted"
