@@ -98,8 +98,9 @@ class _Divergence:
         if step < 0:
             raise UserError(f"training diverged: the weights are not finite after step {s.step} (on another rank "
                             f"or from the last update); {kept}. Lower --lr, or check the scenes' images and bounds.")
-        names = ", ".join(s.train_scenes[i].name for i in self.scenes.tolist())
-        raise UserError(f"training diverged: the loss is {float(self.loss)} at step {step} (scene {names}); {kept}. "
+        names = [s.train_scenes[i].name for i in self.scenes.tolist()]
+        scenes = f"scene {names[0]}" if len(names) == 1 else f"scenes {', '.join(names)}"
+        raise UserError(f"training diverged: the loss is {float(self.loss)} at step {step} ({scenes}); {kept}. "
                         "Lower --lr, or check that scene's images and bounds.")
 
 
@@ -169,9 +170,9 @@ def _run(s: Session) -> TrainResult:
             seconds = time.monotonic() - step_start
             meter.add(terms, seconds)
             session_rays += cfg.rays * s.ctx.world_size
-            session_seconds += seconds
             if s.step % cfg.log_every == 0 or s.step == cfg.steps:
                 last.update(_log(s, meter, elapsed + seconds, bar, divergence))
+                session_seconds += meter.seconds  # step times plus the wait for the device at the log
                 meter = _Meter(s.ctx.device)
             if s.step % cfg.val_every == 0:
                 last.update(val_psnr=_validate_and_keep_best(s, elapsed + seconds, divergence), val_step=s.step)
@@ -180,6 +181,7 @@ def _run(s: Session) -> TrainResult:
             bar.update(1)
         if meter.count:  # steps since the last log line (a time budget or Ctrl-C ended the run between logs)
             last.update(_log(s, meter, elapsed, bar, divergence))
+            session_seconds += meter.seconds
     if s.step > s.start_step:
         if last["val_step"] != s.step and reason != "interrupted":
             last["val_psnr"] = _validate_and_keep_best(s, elapsed, divergence)
