@@ -22,7 +22,7 @@ from insertnerf_cli.scenes import write_blender_transforms
 from insertnerf_cli.training import train
 from insertnerf_cli.training.batches import (BatchObjective, DrawGenerators, check_batch_scenes, draw_step,
                                              make_step_batch)
-from insertnerf_cli.training.data import ImageCache, find_scenes
+from insertnerf_cli.training.data import ImageCache, draw_training_views, find_scenes
 from insertnerf_cli.training.device_data import load_training_set
 from insertnerf_cli.training.session import Objective
 from test_train import (SIZE, TINY, cli_args, one_line_error, orbit_cameras, small, tiny_config,  # noqa: F401
@@ -88,6 +88,24 @@ def test_each_scene_of_a_batch_brings_its_own_views_and_colours(flat_scenes, bud
     # each ray starts at its own target camera
     centres = data.groups[0].c2w[draw.targets, :3, 3].repeat_interleave(16, dim=0)
     assert torch.allclose(batch.rays.origins, centres)
+
+
+def test_device_draws_follow_the_nearest_pool_rule_of_the_legacy_draw(flat_scenes):
+    """The frequencies of (target, source) view pairs match data.draw_training_views (NumPy), seeded: ~3 sigma."""
+    scenes = find_scenes(flat_scenes, SIZE, print, show_progress=False)
+    data = load_training_set(scenes, 64, torch.device("cpu"), print, show_progress=False)
+    gens, rng, n = DrawGenerators(torch.device("cpu"), 0), np.random.default_rng(0), 3000
+    new, old = torch.zeros(5, 5), torch.zeros(5, 5)
+    for _ in range(n):
+        draw = draw_step(data, [0], gens, 1, 1, 4)  # one source view: its pool size shows most
+        first = int(data.groups[0].offsets[draw.scenes[0]])
+        for source in draw.sources[0].tolist():
+            new[int(draw.targets[0]) - first, source - first] += 1
+        legacy = draw_training_views(rng, scenes, 1, 4)
+        for source in legacy.sources:
+            old[legacy.target, source] += 1
+    assert 0 < new.diagonal().sum() < 0.015 * n  # the target itself in place of a source: probability 0.005
+    assert torch.allclose(new / new.sum(), old / old.sum(), atol=0.015)
 
 
 def test_a_batch_of_scenes_is_the_mean_of_one_scene_at_a_time(dataset):

@@ -91,8 +91,9 @@ def draw_step(data: TrainingSet, usable: list[int], gens: DrawGenerators, batch_
     scenes = torch.randperm(len(g.scenes), generator=gen, device=dev)[:batch_scenes]  # [B]
     n = g.n_train[scenes]  # [B]
     target = (torch.rand(batch_scenes, generator=gen, device=dev) * n).long().clamp(max=n - 1)  # [B]
-    factors, probs = _pool_rule(sampling, dev)
-    factor = factors[torch.multinomial(probs, batch_scenes, replacement=True, generator=gen)]
+    factors, cumulative = _pool_rule(sampling, dev)
+    pick = torch.searchsorted(cumulative, torch.rand(batch_scenes, generator=gen, device=dev), right=True)
+    factor = factors[pick.clamp(max=len(factors) - 1)]  # [B] drawn with pool_probs
     pool = torch.minimum(factor * num_views, torch.full_like(factor, sampling.max_pool))
     pool = torch.minimum(pool.clamp(min=num_views), n - 1)  # [B] pool sizes, as sample_training_views
     order = g.neighbours[scenes, target]  # [B, N - 1] positions, nearest first
@@ -110,9 +111,10 @@ def draw_step(data: TrainingSet, usable: list[int], gens: DrawGenerators, batch_
 
 @lru_cache(maxsize=8)
 def _pool_rule(sampling: ViewSampling, device: torch.device) -> tuple[Tensor, Tensor]:
-    """The pool factors and their probabilities on the device, made once: a copy per step would be a sync."""
+    """The pool factors and their cumulative probabilities on the device, made once (a copy per step would be a
+    sync; so might multinomial's checks, hence the inverse-CDF draw)."""
     return (torch.tensor(sampling.pool_factors, device=device),
-            torch.tensor(sampling.pool_probs, dtype=torch.float32, device=device))
+            torch.tensor(sampling.pool_probs, dtype=torch.float64, device=device).cumsum(0).float())
 
 
 def make_step_batch(data: TrainingSet, draw: StepDraw, cache: ImageCache) -> TrainBatch:
