@@ -217,3 +217,15 @@ def test_ddp_with_gloo_on_two_processes_keeps_the_ranks_in_step(dataset, tmp_pat
     assert all(torch.equal(ranks[0]["weights"][k], ranks[1]["weights"][k]) for k in ranks[0]["weights"])
     assert not torch.equal(ranks[0]["draws"], ranks[1]["draws"])  # each rank its own draws
     assert read_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt").train_state.step == 2
+
+
+def test_a_run_from_before_the_device_draws_resumes_with_a_warning(dataset, tmp_path, capsys):
+    """A checkpoint written before issue 9 has no draw generators: --resume goes on with a fresh stream."""
+    cpu = torch.device("cpu")
+    first = train(dataset, tmp_path / "run", small(steps=1), cpu)
+    payload = torch.load(first.checkpoint, weights_only=True)
+    for key in ("draw_device", "draw_host"):
+        del payload["train"]["rng"][key]
+    torch.save(payload, first.checkpoint)
+    more = train(dataset, tmp_path / "run", small(steps=2), cpu, resume=True)
+    assert more.step == 2 and "no state of the step-draw generator" in capsys.readouterr().err
