@@ -3,11 +3,13 @@
     python3 bench/train_throughput.py                        # default ModelConfig: 64+64 samples, 8 views
     python3 bench/train_throughput.py --conditioning concat  # the concatenation ablation
     python3 bench/train_throughput.py --dataset data/ --steps 40 --threads 2
+    python3 bench/train_throughput.py --batch-scenes 2       # 2 scenes per step, 256 rays each
 
-It runs the real training loop (scene draw, image cache, nearest-view pool, encode, both passes, losses,
-backward, Adam) through ``insertnerf_cli.training.train`` and reads the per-step throughput back from
+It runs the real training loop (scene draws on the device, the decoded training set, nearest-view pool, encode,
+both passes, losses, backward, Adam) through ``insertnerf_cli.training.train`` and reads the per-step throughput back from
 metrics.jsonl, skipping warm-up steps. Without --dataset it writes 3 posed scenes of 24 views (Blender format,
-random smooth colours: the content does not change the cost) at the training resolution.
+random smooth colours: the content does not change the cost) at the training resolution; --scenes more when
+--batch-scenes needs them (a step's scenes are distinct training scenes; one is held out).
 """
 from __future__ import annotations
 
@@ -74,16 +76,21 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=TrainConfig.resolution)
     parser.add_argument("--conditioning", choices=["hyper", "concat"], default="hyper")
     parser.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument("--batch-scenes", type=int, help="scenes per step (default: the device's default)")
+    parser.add_argument("--data-budget-mb", type=int, default=TrainConfig.data_budget_mb,
+                        help="0 reads the training views from disk each step (the streamed path)")
+    parser.add_argument("--scenes", type=int, default=3, help="scenes of the written dataset")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     model = ModelConfig(conditioning=args.conditioning)
     config = TrainConfig(model=model, steps=args.warmup + args.steps, rays=args.rays, resolution=args.resolution,
-                         val_every=NEVER, ckpt_every=NEVER, log_every=1)
+                         val_every=NEVER, ckpt_every=NEVER, log_every=1, batch_scenes=args.batch_scenes,
+                         data_budget_mb=args.data_budget_mb)
     with tempfile.TemporaryDirectory() as tmp:
         dataset = args.dataset or Path(tmp) / "data"
         if args.dataset is None:
-            write_dataset(dataset, args.resolution, scenes=3, views=24)
+            write_dataset(dataset, args.resolution, scenes=args.scenes, views=24)
         start = time.monotonic()
         train(dataset, Path(tmp) / "run", config, torch.device("cpu"))
         wall = time.monotonic() - start
@@ -93,7 +100,8 @@ def main() -> None:
     rays_per_s = config.rays * len(measured) / seconds
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # ru_maxrss is in KiB on Linux
     print(f"config: {args.conditioning}, {model.samples_coarse}+{model.samples_fine} samples, "
-          f"{model.num_views} source views, {config.rays} rays/step, {args.resolution} px, "
+          f"{model.num_views} source views, {config.rays} rays/step over {args.batch_scenes or 'default'} "
+          f"scene(s), {args.resolution} px, "
           f"{torch.get_num_threads()} torch threads")
     print(f"parameters: {parameter_counts(model)}")
     print(f"throughput: {rays_per_s:,.0f} rays/s ({seconds / len(measured):.3f} s/step over {len(measured)} steps "

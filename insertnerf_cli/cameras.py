@@ -207,7 +207,7 @@ class Cameras:
         check_shape("uv", uv, (len(self), None, 2))
         check_shape("depth", depth, (len(self), uv.shape[1]))
         ones = torch.ones_like(uv[..., :1])
-        rays_cam = torch.cat([uv, ones], dim=-1) @ torch.linalg.inv(self.K.to(uv)).transpose(1, 2)  # z = 1
+        rays_cam = torch.cat([uv, ones], dim=-1) @ torch.linalg.inv_ex(self.K.to(uv))[0].transpose(1, 2)  # z = 1
         cam = rays_cam * depth[..., None]
         c2w = self.c2w.to(uv)
         return cam @ c2w[:, :3, :3].transpose(1, 2) + c2w[:, None, :3, 3]
@@ -225,7 +225,7 @@ class Cameras:
         """
         check_shape("uv", uv, (len(self), None, 2))
         ones = torch.ones_like(uv[..., :1])
-        rays_cam = torch.cat([uv, ones], dim=-1) @ torch.linalg.inv(self.K.to(uv)).transpose(1, 2)
+        rays_cam = torch.cat([uv, ones], dim=-1) @ torch.linalg.inv_ex(self.K.to(uv))[0].transpose(1, 2)
         return rays_cam @ self.c2w.to(uv)[:, :3, :3].transpose(1, 2)
 
 

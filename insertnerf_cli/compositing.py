@@ -54,9 +54,8 @@ def composite(weights: Tensor, colour: Tensor, t: Tensor, background: Tensor) ->
     rgb = torch.einsum("rs,rsc->rc", weights, colour) + (1.0 - opacity)[:, None] * background  # [R, 3]
     # Normalising by the opacity gives the depth of what is seen; an empty ray falls back to its mean sample.
     depth = (weights * t).sum(dim=-1) / opacity.clamp(min=1e-6)
-    empty = opacity < 1e-6
-    if bool(empty.any()):
-        depth = torch.where(empty, t.mean(dim=-1), depth)
+    # Unconditional: a test of any() would sync the host with the device on every composite.
+    depth = torch.where(opacity < 1e-6, t.mean(dim=-1), depth)
     return Composite(rgb=rgb, depth=depth, opacity=opacity, weights=weights, t=t)
 
 

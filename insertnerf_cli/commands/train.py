@@ -21,8 +21,12 @@ from .common import device_option, overwrite_option, resolve_device, user_errors
 @click.option("--resume", is_flag=True, help="Continue the run in --out exactly where its last checkpoint stopped.")
 @click.option("--conditioning", type=click.Choice(["hyper", "concat"]),
               help="HyperNet modules (InsertNeRF) or plain feature concatenation (the ablation).  [default: hyper]")
-@click.option("--rays", type=int, help="Rays per step.  [default: 512]")
-@click.option("--views", type=int, help="Source views per step.  [default: 8]")
+@click.option("--rays", type=int, help="Rays per step, over all its scenes.  [default: 512]")
+@click.option("--views", type=int, help="Source views per scene of a step.  [default: 8]")
+@click.option("--batch-scenes", type=int, help="Scenes per step, each with --rays / B rays and its own source "
+              "views (one batch).  [default: 1 on CPU, 4 on CUDA]")
+@click.option("--data-budget-mb", type=int, help="Keep the decoded training images on the training device up to "
+              "this size; a larger set is read from disk each step (slower).  [default: 4096]")
 @click.option("--resolution", type=int, help="Long side of the training images in pixels.  [default: 160]")
 @click.option("--lr", type=float, help="Initial learning rate of the NeRF part (the encoder's is twice it by "
               "default).  [default: 5e-4]")

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from ..config import ModelConfig, check_field_types, config_from_json
 from ..errors import UserError
 
@@ -32,7 +34,11 @@ class TrainConfig:
         ckpt_every: steps between checkpoints (one is also written at the end and on Ctrl-C).
         log_every: steps averaged into one line of metrics.jsonl.
         seed: seeds the model initialisation, the data draws and the hold-out split.
-        cache_mb: memory budget of the image cache (uint8 images at the training resolution).
+        cache_mb: memory budget of the image cache (validation images, and training images when streamed).
+        batch_scenes: scenes per step (B); each gets rays / B rays and its own source views. None: the
+            default of the training device (default_batch_scenes), fixed when the run starts.
+        data_budget_mb: the training images (uint8) are decoded once and kept on the training device when they
+            fit this budget; a larger set is read from disk through the image cache each step (0: always).
     """
 
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -51,6 +57,8 @@ class TrainConfig:
     log_every: int = 10
     seed: int = 0
     cache_mb: int = 1024
+    batch_scenes: int | None = None
+    data_budget_mb: int = 4096
 
     def __post_init__(self) -> None:
         try:
@@ -58,12 +66,14 @@ class TrainConfig:
         except ValueError as err:
             raise UserError(f"invalid training setting: {err}") from None
         positive = ("steps", "rays", "lr_half_life", "resolution", "val_every", "val_rays", "ckpt_every",
-                    "log_every", "cache_mb")
-        bad = [name for name in positive if getattr(self, name) < 1]
+                    "log_every", "cache_mb", "batch_scenes")
+        bad = [name for name in positive if getattr(self, name) is not None and getattr(self, name) < 1]
         if bad:
             raise UserError(f"training settings must be positive: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")
         if self.minutes is not None and self.minutes <= 0:
             raise UserError(f"--minutes must be positive, got {self.minutes}")
+        if self.data_budget_mb < 0:
+            raise UserError(f"--data-budget-mb must be 0 (always read from disk) or more, got {self.data_budget_mb}")
         if min(self.lr, self.lr_encoder) <= 0 or self.lr_min < 0 or self.val_scenes < 0:
             raise UserError(f"learning rates must be positive, lr_min and val_scenes >= 0; got lr={self.lr}, "
                             f"lr_encoder={self.lr_encoder}, lr_min={self.lr_min}, val_scenes={self.val_scenes}")
@@ -76,7 +86,23 @@ class TrainConfig:
 
 
 # Changing these on --resume keeps training valid but the run no longer matches an uninterrupted one.
-DATA_FIELDS = ("rays", "resolution", "seed", "lr", "lr_encoder", "lr_half_life", "lr_min", "val_scenes")
+DATA_FIELDS = ("rays", "resolution", "seed", "lr", "lr_encoder", "lr_half_life", "lr_min", "val_scenes",
+               "batch_scenes")
+
+# Scenes per step when --batch-scenes is not given. CPU: measured (docs/benchmarks.md, issue 9). CUDA: not
+# measured yet (no GPU was lent to that work); 4 keeps B * V = 32 images per encoder call.
+_DEFAULT_BATCH_SCENES = {"cpu": 1, "cuda": 4}
+
+
+def default_batch_scenes(device: torch.device) -> int:
+    return _DEFAULT_BATCH_SCENES.get(device.type, 1)
+
+
+def with_device_defaults(config: TrainConfig, device: torch.device) -> TrainConfig:
+    """``config`` with its per-device defaults fixed (so the saved config says what the run used)."""
+    if config.batch_scenes is not None:
+        return config
+    return dataclasses.replace(config, batch_scenes=default_batch_scenes(device))
 
 
 def with_overrides(config: TrainConfig, model: dict[str, Any], train: dict[str, Any]) -> TrainConfig:

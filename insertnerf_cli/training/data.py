@@ -144,14 +144,19 @@ class ImageCache:
         if key in self._images:
             self._images.move_to_end(key)
             return self._images[key]
-        image = scene.scene.load_image(index, scene.cameras.height, scene.cameras.width)  # float32 [H, W, 3]
-        stored = torch.from_numpy(np.rint(np.clip(image, 0.0, 1.0) * _LEVELS).astype(np.uint8))
+        stored = decode_uint8(scene, index)
         self._images[key] = stored
         self.used += stored.numel()
         while self.used > self.budget and len(self._images) > 1:
             _, dropped = self._images.popitem(last=False)
             self.used -= dropped.numel()
         return stored
+
+
+def decode_uint8(scene: TrainScene, index: int) -> Tensor:
+    """Image ``index`` of the scene at the training size as uint8 [H, W, 3]."""
+    image = scene.scene.load_image(index, scene.cameras.height, scene.cameras.width)  # float32 [H, W, 3]
+    return torch.from_numpy(np.rint(np.clip(image, 0.0, 1.0) * _LEVELS).astype(np.uint8))
 
 
 def make_batch(scene: TrainScene, cache: ImageCache, draw: ViewDraw) -> TrainBatch:

@@ -11,13 +11,14 @@ from pathlib import Path
 from typing import Any, Callable
 
 import torch
+from torch import Tensor
 from tqdm import tqdm
 
 from ..errors import UserError
 from ..model import LossTerms
 from . import distributed
-from .config import TrainConfig
-from .data import TrainBatch, draw_training_views, make_batch
+from .config import TrainConfig, with_device_defaults
+from .data import make_batch
 from .run_dir import RunFiles, append_metrics
 from .session import Session, open_session, save, set_learning_rates
 
@@ -53,21 +54,54 @@ class TrainResult:
 
 
 class _Meter:
-    """Sums of the loss terms and step times since the last log line."""
+    """Sums of the loss terms (on the training device: no host sync per step) and step times since the last log."""
 
-    def __init__(self) -> None:
-        self.sums = {name: 0.0 for name in LOSS_NAMES}
+    def __init__(self, device: torch.device) -> None:
+        self.sums = torch.zeros(len(LOSS_NAMES), dtype=torch.float64, device=device)
         self.count = 0
         self.seconds = 0.0
 
-    def add(self, values: dict[str, float], seconds: float) -> None:
-        for name, value in values.items():
-            self.sums[name] += value
+    def add(self, terms: LossTerms, seconds: float) -> None:
+        self.sums += torch.stack([getattr(terms, n).detach() for n in LOSS_NAMES]).to(self.sums.dtype)
         self.count += 1
         self.seconds += seconds
 
     def means(self) -> dict[str, float]:
-        return {name: total / max(self.count, 1) for name, total in self.sums.items()}
+        return dict(zip(LOSS_NAMES, (self.sums / max(self.count, 1)).tolist()))
+
+
+class _Divergence:
+    """The first step whose loss was not finite, its loss and scenes, kept on the training device and read only
+    at log steps and before every save (a non-finite step is never saved)."""
+
+    def __init__(self, device: torch.device, batch_scenes: int) -> None:
+        self.step = torch.full((), -1, dtype=torch.int64, device=device)
+        self.loss = torch.zeros((), dtype=torch.float64, device=device)
+        self.scenes = torch.zeros(batch_scenes, dtype=torch.int64, device=device)
+
+    def record(self, total: Tensor, step: int, scenes: Tensor) -> None:
+        first = ~torch.isfinite(total.detach()) & (self.step < 0)
+        self.step = torch.where(first, step, self.step)
+        self.loss = torch.where(first, total.detach().to(self.loss.dtype), self.loss)
+        self.scenes = torch.where(first, scenes, self.scenes)
+
+    def check(self, s: Session) -> None:
+        """UserError on every rank when any rank's loss or weights went non-finite; the last checkpoint stays."""
+        step = int(self.step)
+        weights_bad = step < 0 and not bool(torch.isfinite(
+            torch.cat([p.detach().reshape(-1) for p in s.model.parameters()])).all())
+        (diverged,) = distributed.any_rank([step >= 0 or weights_bad], s.ctx)
+        if not diverged:
+            return
+        kept = (f"{s.files.last} (step {s.saved_step}) is kept" if s.saved_step is not None
+                else "no checkpoint had been written yet")
+        if step < 0:
+            raise UserError(f"training diverged: the weights are not finite after step {s.step} (on another rank "
+                            f"or from the last update); {kept}. Lower --lr, or check the scenes' images and bounds.")
+        names = [s.train_scenes[i].name for i in self.scenes.tolist()]
+        scenes = f"scene {names[0]}" if len(names) == 1 else f"scenes {', '.join(names)}"
+        raise UserError(f"training diverged: the loss is {float(self.loss)} at step {step} ({scenes}); {kept}. "
+                        "Lower --lr, or check that scene's images and bounds.")
 
 
 class _StopRequest:
@@ -107,8 +141,13 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, dev
     ctx = distributed.start(device)
     say = _printer(ctx.is_main)
     try:
+        config = with_device_defaults(config, ctx.device)
         session = open_session(Path(dataset_dir), RunFiles(Path(run_dir)), config, ctx, resume, overwrite, say)
-        return _run(session)
+        try:
+            return _run(session)
+        finally:
+            if session.stream is not None:
+                session.stream.close()
     finally:
         distributed.stop(ctx)
 
@@ -116,8 +155,9 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, dev
 def _run(s: Session) -> TrainResult:
     cfg = s.config
     t0 = time.monotonic()
-    meter, last = _Meter(), {"train_psnr": None, "val_psnr": None, "rays_per_s": None, "val_step": None}
+    meter, last = _Meter(s.ctx.device), {"train_psnr": None, "val_psnr": None, "rays_per_s": None, "val_step": None}
     session_rays, session_seconds = 0, 0.0
+    divergence = _Divergence(s.ctx.device, cfg.batch_scenes or 1)
     with _StopRequest(s.say) as stop, _progress_bar(s) as bar:
         while True:
             elapsed = s.elapsed_before + time.monotonic() - t0
@@ -125,26 +165,27 @@ def _run(s: Session) -> TrainResult:
             if reason:
                 break
             step_start = time.monotonic()
-            values = _train_step(s)
+            terms = _train_step(s, divergence)
             s.step += 1
             seconds = time.monotonic() - step_start
-            meter.add(values, seconds)
+            meter.add(terms, seconds)
             session_rays += cfg.rays * s.ctx.world_size
-            session_seconds += seconds
             if s.step % cfg.log_every == 0 or s.step == cfg.steps:
-                last.update(_log(s, meter, elapsed + seconds, bar))
-                meter = _Meter()
+                last.update(_log(s, meter, elapsed + seconds, bar, divergence))
+                session_seconds += meter.seconds  # step times plus the wait for the device at the log
+                meter = _Meter(s.ctx.device)
             if s.step % cfg.val_every == 0:
-                last.update(val_psnr=_validate_and_keep_best(s, elapsed + seconds), val_step=s.step)
+                last.update(val_psnr=_validate_and_keep_best(s, elapsed + seconds, divergence), val_step=s.step)
             if s.step % cfg.ckpt_every == 0:
-                _checkpoint(s, elapsed + seconds)
+                _checkpoint(s, elapsed + seconds, divergence)
             bar.update(1)
         if meter.count:  # steps since the last log line (a time budget or Ctrl-C ended the run between logs)
-            last.update(_log(s, meter, elapsed, bar))
+            last.update(_log(s, meter, elapsed, bar, divergence))
+            session_seconds += meter.seconds
     if s.step > s.start_step:
         if last["val_step"] != s.step and reason != "interrupted":
-            last["val_psnr"] = _validate_and_keep_best(s, elapsed)
-        _checkpoint(s, elapsed)
+            last["val_psnr"] = _validate_and_keep_best(s, elapsed, divergence)
+        _checkpoint(s, elapsed, divergence)
     elif reason == "steps":
         s.say(f"the run is already at step {s.step} of --steps {cfg.steps}; pass a larger --steps to go on.")
     elif reason == "minutes":
@@ -155,8 +196,14 @@ def _run(s: Session) -> TrainResult:
 
 
 def _stop_reason(s: Session, elapsed: float, interrupted: bool) -> str | None:
-    """Why the loop should stop now, agreed by every rank (None = go on)."""
+    """Why the loop should stop now, agreed by every rank (None = go on).
+
+    Under torchrun the ranks agree at log steps only (and at the first step): agreeing is a collective, a host
+    sync, so a time budget or Ctrl-C there takes effect within --log-every steps.
+    """
     over_time = s.config.minutes is not None and elapsed >= 60.0 * s.config.minutes
+    if s.ctx.distributed and s.step % s.config.log_every and s.step != s.start_step:
+        over_time = interrupted = False
     over_time, interrupted = distributed.any_rank([over_time, interrupted], s.ctx)
     if interrupted:
         return "interrupted"
@@ -165,30 +212,27 @@ def _stop_reason(s: Session, elapsed: float, interrupted: bool) -> str | None:
     return "minutes" if over_time else None
 
 
-def _train_step(s: Session) -> dict[str, float]:
-    """One optimisation step; returns the loss terms as numbers. A non-finite loss stops training cleanly."""
-    cfg = s.config
-    draw = draw_training_views(s.data_rng, s.train_scenes, cfg.model.num_views, cfg.rays)
-    batch: TrainBatch = make_batch(s.train_scenes[draw.scene], s.cache, draw).to(s.ctx.device)
+def _train_step(s: Session, divergence: _Divergence) -> LossTerms:
+    """One optimisation step on B scenes, with no host sync: the loss terms stay on the device."""
+    assert s.stream is not None
+    scenes = s.config.batch_scenes or 1
+    draw, batch = s.stream.next()
     set_learning_rates(s)
     s.optimizer.zero_grad(set_to_none=True)
-    terms = s.objective(batch.views, batch.rays, batch.target_rgb)
-    values = dict(zip(LOSS_NAMES, torch.stack([getattr(terms, n).detach().float() for n in LOSS_NAMES]).tolist()))
-    (diverged,) = distributed.any_rank([not math.isfinite(values["total"])], s.ctx)
-    if diverged:
-        kept = (f"{s.files.last} (step {s.saved_step}) is kept" if s.saved_step is not None
-                else "no checkpoint had been written yet")
-        raise UserError(f"training diverged: the loss is {values['total']} at step {s.step + 1} (scene "
-                        f"{s.train_scenes[draw.scene].name}); {kept}. Lower --lr, or check that scene's images "
-                        "and bounds.")
+    terms = s.objective(batch.views, batch.rays, batch.target_rgb, scenes)
+    divergence.record(terms.total, s.step + 1, s.data.groups[draw.group].scene_index[draw.scenes])
     terms.total.backward()
     s.optimizer.step()
-    return values
+    return terms
 
 
-def _log(s: Session, meter: _Meter, elapsed: float, bar: tqdm) -> dict[str, float]:
-    """Append the averages since the last log to metrics.jsonl and show them on the progress bar."""
-    means = meter.means()
+def _log(s: Session, meter: _Meter, elapsed: float, bar: tqdm, divergence: _Divergence) -> dict[str, float]:
+    """Append the averages since the last log to metrics.jsonl and show them on the progress bar (the one host
+    sync of the steps in between); a non-finite loss since the last check stops training here."""
+    divergence.check(s)
+    synced = time.monotonic()
+    means = meter.means()  # waits for the queued steps: their device time joins the window's
+    meter.seconds += time.monotonic() - synced
     psnr = -10.0 * math.log10(max(means["mse_fine"], 1e-12))
     rays_per_s = s.config.rays * s.ctx.world_size * meter.count / max(meter.seconds, 1e-9)
     lr = s.config.learning_rate(s.config.lr, s.step)
@@ -237,8 +281,9 @@ def validate(s: Session) -> float | None:
     return sum(psnrs) / len(psnrs)
 
 
-def _validate_and_keep_best(s: Session, elapsed: float) -> float | None:
-    """Validate on rank 0, log it, and save best.pt when it is the best so far."""
+def _validate_and_keep_best(s: Session, elapsed: float, divergence: _Divergence) -> float | None:
+    """Validate on rank 0, log it, and save best.pt when it is the best so far (never from diverged weights)."""
+    divergence.check(s)
     if not s.ctx.is_main:
         return None
     value = validate(s)
@@ -252,7 +297,8 @@ def _validate_and_keep_best(s: Session, elapsed: float) -> float | None:
     return value
 
 
-def _checkpoint(s: Session, elapsed: float) -> None:
+def _checkpoint(s: Session, elapsed: float, divergence: _Divergence) -> None:
+    divergence.check(s)
     if s.ctx.is_main:
         save(s, s.files.last, elapsed)
     s.saved_step = s.step

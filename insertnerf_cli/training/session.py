@@ -19,8 +19,10 @@ from ..model import InsertNeRF, LossTerms, SourceViews
 from ..rays import Rays
 from . import distributed
 from .config import DATA_FIELDS, TrainConfig, model_differences
+from .batches import BatchObjective, DrawGenerators, StepStream, check_batch_scenes
 from .data import (ImageCache, TrainScene, ViewDraw, check_view_counts, find_scenes, split_scenes,
                    validation_draws)
+from .device_data import TrainingSet, load_training_set
 from .distributed import DistContext
 from .rng import capture_rng, restore_rng
 from .run_dir import (RunFiles, check_run_dir, claim_run, clear_run, read_splits, truncate_metrics,
@@ -45,12 +47,15 @@ class Session:
     val_draws: list[ViewDraw]
     cache: ImageCache
     say: Say
+    data: TrainingSet  # the training scenes as tensors (on the device when they fit the budget)
+    generators: DrawGenerators  # the step draws (data_rng serves the legacy draw_training_views)
     step: int = 0
     elapsed_before: float = 0.0  # training seconds of earlier sessions of this run
     best_val_psnr: float | None = None
     saved_step: int | None = None  # step of the newest checkpoint on disk
     start_step: int = 0
-    objective: nn.Module | None = None  # Objective(model), wrapped in DistributedDataParallel under torchrun
+    objective: nn.Module | None = None  # BatchObjective(model), wrapped in DistributedDataParallel under torchrun
+    stream: StepStream | None = None  # the step batches, made after the generators are restored
 
 
 class Objective(nn.Module):
@@ -82,13 +87,19 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
     _seed_everything(config.seed)
     model = InsertNeRF(config.model).to(ctx.device)
     optimizer = torch.optim.Adam(param_groups(model, config))
+    data = load_training_set(train, config.data_budget_mb, ctx.device, say, show_progress=ctx.is_main)
+    assert config.batch_scenes is not None  # fixed by config.with_device_defaults before the session
+    usable = check_batch_scenes(data, config.batch_scenes, config.rays)
     session = Session(config, files, ctx, model, optimizer, np.random.default_rng([config.seed, ctx.rank]),
                       train, val_source, validation_draws(val_source, config.model.num_views, config.val_rays,
                                                           config.seed),
-                      ImageCache(config.cache_mb * _BYTES_PER_MB), say)
+                      ImageCache(config.cache_mb * _BYTES_PER_MB), say, data,
+                      DrawGenerators(ctx.device, config.seed, ctx.rank))
     if checkpoint is not None:
         _restore(session, checkpoint)
-    session.objective = distributed.wrap(Objective(model), ctx)  # after restoring: DDP broadcasts rank 0
+    session.objective = distributed.wrap(BatchObjective(model), ctx)  # after restoring: DDP broadcasts rank 0
+    session.stream = StepStream(data, usable, session.generators, config.batch_scenes, config.model.num_views,
+                                config.rays, config.cache_mb * _BYTES_PER_MB)
     if ctx.is_main:
         _prepare_files(session, dataset_dir, resume, overwrite, ([s.name for s in train], [s.name for s in val]))
     distributed.barrier(ctx)
@@ -133,7 +144,7 @@ def set_learning_rates(session: Session) -> float:
 def save(session: Session, path: Path, elapsed_s: float) -> None:
     """A checkpoint of the session at its current (completed) step, after ``elapsed_s`` of training in total."""
     state = TrainState(step=session.step, elapsed_s=elapsed_s, optimizer=session.optimizer.state_dict(),
-                       rng=capture_rng(session.data_rng, session.ctx.device),
+                       rng={**capture_rng(session.data_rng, session.ctx.device), **draw_state(session)},
                        train_config=json.dumps(config_to_json(session.config)), best_val_psnr=session.best_val_psnr)
     try:
         save_checkpoint(path, session.model, session.config.model, state)
@@ -143,6 +154,11 @@ def save(session: Session, path: Path, elapsed_s: float) -> None:
                 else "no checkpoint of this run had been written yet")
         raise WriteError(f"{err.problem} while saving {path} at step {session.step}; training stopped and {kept}: "
                          "free space, then continue with --resume.", err.problem) from None
+
+
+def draw_state(session: Session) -> dict[str, Tensor]:
+    """The draw generators' state that reproduces the session's next step (a streamed set draws ahead)."""
+    return session.stream.state() if session.stream is not None else session.generators.state()
 
 
 def _seed_everything(seed: int) -> None:
@@ -164,9 +180,14 @@ def _restore(session: Session, checkpoint: Checkpoint) -> None:
     session.elapsed_before = state.elapsed_s
     session.best_val_psnr = state.best_val_psnr
     restore_rng(state.rng, session.data_rng, session.ctx.device)
+    if not session.generators.load_state(state.rng):
+        session.say("warning: the checkpoint has no state of the step-draw generator (an older run); the "
+                    "draws continue on a fresh stream.")
+        session.generators.reseed(session.config.seed, session.ctx.rank, state.step)
     if session.ctx.rank > 0:
-        # Only rank 0's generator is saved; the others continue on a stream of their own.
+        # Only rank 0's generators are saved; the others continue on a stream of their own.
         session.data_rng = np.random.default_rng([session.config.seed, session.ctx.rank, state.step])
+        session.generators.reseed(session.config.seed, session.ctx.rank, state.step)
 
 
 def _split(files: RunFiles, scenes: list[TrainScene], config: TrainConfig, resume: bool,
