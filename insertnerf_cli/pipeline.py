@@ -56,6 +56,7 @@ class RenderConfig:
         device: torch device name (cpu or cuda), resolved once by the command.
         chunk: rays per network call (bounds memory).
         overwrite: replace the outputs of a different earlier run in the output folder.
+        finetune_minutes: first fine-tune the weights on the scene for this long (cached as OUT/finetune.pt).
     """
 
     path: str | None = None
@@ -67,6 +68,7 @@ class RenderConfig:
     device: str = "cpu"
     chunk: int = DEFAULT_CHUNK
     overwrite: bool = False
+    finetune_minutes: float | None = None
 
 
 @dataclass(frozen=True)
@@ -244,7 +246,8 @@ def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, image
     """Everything that changes the frames: a re-run with an equal state may resume."""
     return {"version": STATE_VERSION, "scene": str(scene_dir.resolve()), "images": images, "path": config.path,
             "frames": config.frames, "resolution": config.resolution, "views": config.views,
-            "checkpoint_sha256": _sha256(checkpoint)}
+            "checkpoint_sha256": _sha256(checkpoint),
+            **({"finetune_minutes": config.finetune_minutes} if config.finetune_minutes is not None else {})}
 
 
 def _plan(scene, config: RenderConfig):
@@ -277,6 +280,11 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     model = _load_model(checkpoint, config.device)
     prepare_out_dir(out_dir, _render_state(scene_dir, checkpoint, config, images), config.overwrite)
     scene, similarity, path = planned or _plan(_posed_photos(scene_dir, out_dir / POSES_DIR), config)
+    if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
+        from .finetune import render_finetune
+
+        model = _load_model(render_finetune(scene_dir if images is None else out_dir / POSES_DIR, out_dir,
+                                            checkpoint, config), config.device)
     user_cams = similarity.inverse().apply_cameras(path.cameras)
     check_resumable(out_dir, user_cams)
     write_cameras_json(out_dir / CAMERAS_JSON, user_cams, path.near / similarity.scale, path.far / similarity.scale,
