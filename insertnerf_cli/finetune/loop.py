@@ -46,10 +46,10 @@ class FinetuneConfig:
 
     minutes: float | None = 5.0
     steps: int | None = None
-    rays: int = 512
-    lr: float = 1e-4
+    rays: int = 128
+    lr: float = 5e-4
     train_encoder: bool = False
-    lr_encoder: float = 1e-4
+    lr_encoder: float = 5e-4
     views: int = DEFAULT_VIEWS
     resolution: int | None = DEFAULT_RESOLUTION
     seed: int = 0
