@@ -16,6 +16,11 @@ from .errors import UserError
 
 T = TypeVar("T")
 
+# What render, eval and finetune see of a scene by default: the long side of its photos in pixels, and how many
+# of the nearest reference views condition each frame (fine-tuning at the same values is what render profits from).
+DEFAULT_RESOLUTION = 256
+DEFAULT_VIEWS = 10
+
 
 @dataclass(frozen=True)
 class ModelConfig:

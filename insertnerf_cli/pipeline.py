@@ -21,6 +21,7 @@ import torch
 from tqdm import tqdm
 
 from .atomic import write_json
+from .config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from .cameras import Cameras
 from .errors import UserError
 from .metrics import SSIM_WINDOW, psnr, ssim
@@ -34,8 +35,6 @@ from .paths import CameraPath, default_path_kind, make_path
 
 DEFAULT_FRAMES = 30
 DEFAULT_FPS = 15.0
-DEFAULT_RESOLUTION = 256
-DEFAULT_VIEWS = 10
 # render.py measured 128 rays per call fastest on CPU (per-view tensors stay in cache; 512 was 30% slower).
 DEFAULT_CHUNK = 128
 STATE_VERSION = 1
@@ -59,6 +58,7 @@ class RenderConfig:
         device: torch device name (cpu or cuda), resolved once by the command.
         chunk: rays per network call (bounds memory).
         overwrite: replace the outputs of a different earlier run in the output folder.
+        finetune_minutes: first fine-tune the weights on the scene for this long (cached as OUT/finetune.pt).
     """
 
     path: str | None = None
@@ -70,6 +70,7 @@ class RenderConfig:
     device: str = "cpu"
     chunk: int = DEFAULT_CHUNK
     overwrite: bool = False
+    finetune_minutes: float | None = None
 
 
 @dataclass(frozen=True)
@@ -182,6 +183,17 @@ def _is_scene(folder: Path) -> bool:
     return detect_format(folder) is not None
 
 
+def _finetuned(scene_dir: Path, out_dir: Path, checkpoint: Path, config: RenderConfig) -> Path:
+    """The weights `render --finetune M` renders with: fine-tuned for M minutes at the render's resolution and
+    number of reference views, kept in OUT and reused by a later run with the same inputs."""
+    from .finetune import FinetuneConfig, cached_finetune
+    from .finetune.render_cache import RECORD, WEIGHTS
+
+    OutputRecord(out_dir, RENDER_OWNER).claim(WEIGHTS, RECORD)
+    ft = FinetuneConfig(minutes=config.finetune_minutes, views=config.views, resolution=config.resolution)
+    return cached_finetune(scene_dir, out_dir, checkpoint, ft, torch.device(config.device))
+
+
 def _posed_photos(scene_dir: Path, out_dir: Path, created: bool):
     """The scene pycolmap makes of a plain photo folder, estimated once into OUT/poses and reused after.
 
@@ -272,7 +284,8 @@ def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, image
     """Everything that changes the frames: a re-run with an equal state may resume."""
     return {"version": STATE_VERSION, "scene": str(scene_dir.resolve()), "images": images, "path": config.path,
             "frames": config.frames, "resolution": config.resolution, "views": config.views,
-            "checkpoint_sha256": _sha256(checkpoint)}
+            "checkpoint_sha256": _sha256(checkpoint),
+            **({"finetune_minutes": config.finetune_minutes} if config.finetune_minutes is not None else {})}
 
 
 def _plan(scene, config: RenderConfig):
@@ -309,6 +322,9 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     created = not out_dir.exists()
     prepare_out_dir(out_dir, state, config.overwrite)
     scene, similarity, path = planned or _plan(_posed_photos(scene_dir, out_dir, created), config)
+    if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
+        model = _load_model(_finetuned(scene_dir if images is None else out_dir / POSES_DIR, out_dir, checkpoint,
+                                       config), config.device)
     user_cams = similarity.inverse().apply_cameras(path.cameras)
     check_resumable(out_dir, user_cams)
     claim_render_outputs(out_dir, len(path))

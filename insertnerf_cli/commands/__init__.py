@@ -5,5 +5,6 @@ from .synth import synth
 from .train import train
 from .render import render
 from .eval import eval_command
+from .finetune import finetune_command
 
-COMMANDS = [poses, synth, train, render, eval_command]
+COMMANDS = [poses, synth, train, render, eval_command, finetune_command]

@@ -41,12 +41,16 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
               help="Frames of the path [default: 30; for --path input every input view].")
 @click.option("--fps", type=FiniteFloat(min=0, min_open=True), default=DEFAULT_FPS, show_default=True,
               help="Frame rate of the videos.")
+@click.option("--finetune", "finetune_minutes", type=click.FloatRange(min=0, min_open=True),
+              help="First fine-tune the weights on SCENE_DIR's own photos for this many minutes (kept in "
+                   "OUT/finetune.pt and reused by a re-run; see `insertnerf finetune`).")
 @model_options
 @device_option
 @overwrite_option
 @user_errors
 def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float, views: int,
-           resolution: int, checkpoint: Path | None, chunk: int, device: str, overwrite: bool) -> None:
+           resolution: int, checkpoint: Path | None, chunk: int, device: str, overwrite: bool,
+           finetune_minutes: float | None) -> None:
     """Render novel views of SCENE_DIR into --out: frames, depth maps, videos and cameras.
 
     SCENE_DIR is a scene in any supported format, or a plain folder of photos (their poses are then estimated
@@ -58,5 +62,5 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
     """
     config = RenderConfig(path=path_kind, frames=frames, fps=fps, resolution=resolution or None, views=views,
                           checkpoint=checkpoint, device=str(resolve_device(device)), chunk=chunk,
-                          overwrite=overwrite)
+                          overwrite=overwrite, finetune_minutes=finetune_minutes)
     click.echo(render_scene(scene_dir, out_dir, config).line())

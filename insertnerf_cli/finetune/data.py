@@ -1,0 +1,71 @@
+"""What fine-tuning trains on: one scene's own photos minus the views `insertnerf eval` holds out.
+
+The scene is read, normalised and sized exactly as `render`/`eval` do (training.data.prepare_scene uses
+scenes.normalize_scene and Scene.size_for), and the held-out views are pipeline.held_out_views (the test split,
+else every 8th view). Those views are removed from the pool the draws pick targets and sources from, so a
+fine-tuned checkpoint never saw them and `eval` on it stays an honest score.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import UserError
+from ..model import EncodedViews, InsertNeRF, SourceViews
+from ..pipeline import held_out_views
+from ..training.data import ImageCache, TrainScene, ViewDraw, draw_training_views, prepare_scene
+
+# Views encoded at once when the frozen encoder's features are precomputed (bounds peak memory).
+_ENCODE_BATCH = 8
+
+
+def finetune_scene(scene_dir: Path, resolution: int | None) -> TrainScene:
+    """The normalised scene at ``resolution`` (long side; None = full size) with train_ids = the views fine-tuning
+    may use and test_ids = the views eval holds out."""
+    scene = prepare_scene(Path(scene_dir), resolution, Path(scene_dir).name)
+    held = held_out_views(scene.scene)
+    usable = tuple(i for i in range(len(scene.scene)) if i not in set(held))
+    if len(usable) < 2:
+        raise UserError(f"{scene_dir}: only {len(usable)} view(s) are left after holding out eval's {len(held)}; "
+                        "fine-tuning needs at least 2 (a target and a source).")
+    return dataclasses.replace(scene, train_ids=usable, test_ids=tuple(held))
+
+
+def draw(rng: np.random.Generator, scene: TrainScene, views: int, rays: int) -> ViewDraw:
+    """One target view, its source views and ``rays`` target pixels, all from ``scene.train_ids`` (training's rule:
+    sources drawn from a pool of the target's nearest views)."""
+    return draw_training_views(rng, [scene], views, rays)
+
+
+class FrozenFeatures:
+    """U-Net features of every usable view, computed once: with the encoder frozen a step only gathers them.
+
+    The encoder treats each image on its own (no normalisation across views), so the features of a view are the
+    same whichever other views it is encoded with.
+    """
+
+    def __init__(self, model: InsertNeRF, scene: TrainScene, cache: ImageCache) -> None:
+        self.position = {index: p for p, index in enumerate(scene.train_ids)}
+        parts = []
+        with torch.no_grad():
+            for start in range(0, len(scene.train_ids), _ENCODE_BATCH):
+                ids = list(scene.train_ids[start:start + _ENCODE_BATCH])
+                images = torch.stack([cache.get(scene, i) for i in ids]).to(torch.float32) / 255.0  # [V, H, W, 3]
+                views = SourceViews(images, scene.cameras.subset(ids)).to(device=model.background.device)
+                parts.append(model.encode(views))
+        self.all = EncodedViews(features=tuple(torch.cat([p.features[s] for p in parts])
+                                               for s in range(len(parts[0].features))),
+                                images=torch.cat([p.images for p in parts]),
+                                projection=torch.cat([p.projection for p in parts]),
+                                centers=torch.cat([p.centers for p in parts]),
+                                height=parts[0].height, width=parts[0].width)
+
+    def select(self, indices: tuple[int, ...]) -> EncodedViews:
+        """The encoded views of scene view ``indices`` (in that order); no backbone reconstruction."""
+        rows = torch.tensor([self.position[i] for i in indices], device=self.all.images.device)
+        return EncodedViews(features=tuple(f[rows] for f in self.all.features), images=self.all.images[rows],
+                            projection=self.all.projection[rows], centers=self.all.centers[rows],
+                            height=self.all.height, width=self.all.width)
