@@ -6,9 +6,10 @@
     python3 bench/hostile.py --installed      # run `insertnerf` from PATH instead of this checkout's code
 
 It builds its own tiny inputs (a `synth` dataset of 32 px scenes, a 2-step checkpoint of a tiny model, 16 photos
-of a ray-cast room), then runs the cases of bench/hostile_cases.py and bench/hostile_inputs.py. What a case must
-show comes from the developer brief and issue 12, not from today's code: bad input ends with a short error (at
-most 3 lines besides progress bars: the error and a hint) and an exit status of 1-125; valid input exits 0;
+of a ray-cast room), then runs the cases of bench/hostile_cases.py, bench/hostile_inputs.py and
+bench/hostile_finetune.py. What a case must show comes from the developer brief and issue 12, not from today's
+code: bad input ends with a short error (at most 3 lines besides progress bars: the error and a hint) and an exit
+status of 1-125; valid input exits 0;
 Ctrl-C exits non-zero; no step prints a Python traceback; every input file and every file of the user's put into
 an output folder is still there, unchanged, and nothing was written inside an input; no temporary or partial
 file is left. Read-only and unreadable cases run as the unprivileged user 65534 (setpriv) because root ignores
@@ -35,6 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's insertnerf_cli, for the fixtures and the default launcher
 
 import hostile_cases  # noqa: E402,F401  (registers its cases; bench/ is on sys.path when run as a script)
+import hostile_finetune  # noqa: E402,F401
 import hostile_inputs  # noqa: E402,F401
 from hostile_kit import CASES, NOBODY, STEP_TIMEOUT_S, Fixtures, Plan, Workspace, run_insertnerf  # noqa: E402
 
@@ -184,7 +186,8 @@ def report_line(r: Result) -> str:
 
 def summary(results: list[Result]) -> str:
     ran = [r for r in results if not r.skipped]
-    per_command = {c: sum(r.command == c for r in ran) for c in ("poses", "synth", "train", "render", "eval")}
+    commands = ("poses", "synth", "train", "render", "eval", "finetune")
+    per_command = {c: sum(r.command == c for r in ran) for c in commands}
     return (f"hostile: {len(ran)} cases, tracebacks {sum(r.traceback for r in ran)}, "
             f"data lost {sum(bool(r.lost) for r in ran)}, wrong exit {sum(r.wrong_exit for r in ran)}; "
             f"other problems {sum(bool(r.problems) and not r.traceback for r in ran)}, "

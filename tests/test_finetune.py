@@ -174,3 +174,13 @@ def test_render_finetune_caches_the_weights_in_out(tmp_path, base):
     assert weights.stat().st_mtime_ns == made
     other = run(*args[:-1], 0.006, "--overwrite")  # another budget: fine-tuned again, frames rendered again
     assert other.exit_code == 0 and "reusing" not in other.output and weights.stat().st_mtime_ns != made
+
+
+def test_a_budget_that_is_not_a_finite_number_is_refused(tmp_path, base):
+    """--minutes nan once ran for ever (no elapsed time is >= nan); with --steps 1 a regression exits 0 instead."""
+    scene = make_scene(tmp_path / "scene", {"train": 6})
+    for value in ("nan", "inf"):
+        refused = _finetune(scene, base, tmp_path / "ft.pt", "--steps", 1, "--minutes", value)
+        assert refused.exit_code == 2 and "finite" in refused.output and not (tmp_path / "ft.pt").exists()
+    refused = run("render", scene, "--out", tmp_path / "video", "--finetune", "nan", "--device", "cpu")
+    assert refused.exit_code == 2 and "finite" in refused.output and not (tmp_path / "video").exists()

@@ -7,7 +7,7 @@ import click
 
 from ..config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from ..finetune import FinetuneConfig, FinetuneResult, finetune
-from .common import device_option, overwrite_option, resolve_device, user_errors
+from .common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
 
 _DEFAULT_MINUTES = FinetuneConfig.minutes
 _DEFAULTS = FinetuneConfig()
@@ -17,7 +17,7 @@ _DEFAULTS = FinetuneConfig()
 @click.argument("scene_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Checkpoint to write (e.g. finetuned.pt), outside SCENE_DIR; use it with render/eval --checkpoint.")
-@click.option("--minutes", type=click.FloatRange(min=0, min_open=True),
+@click.option("--minutes", type=FiniteFloat(min=0, min_open=True),
               help=f"Time budget of the optimisation.  [default: {_DEFAULT_MINUTES:g}, or none when --steps is given]")
 @click.option("--steps", type=click.IntRange(min=1), help="Stop after this many steps (the first budget reached wins).")
 @click.option("--checkpoint", "base", type=click.Path(exists=True, dir_okay=False, path_type=Path),
@@ -28,7 +28,7 @@ _DEFAULTS = FinetuneConfig()
               help="Source views per step, as render/eval's --views.")
 @click.option("--rays", type=click.IntRange(min=1), default=_DEFAULTS.rays, show_default=True,
               help="Target pixels per step.")
-@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=_DEFAULTS.lr, show_default=True,
+@click.option("--lr", type=FiniteFloat(min=0, min_open=True), default=_DEFAULTS.lr, show_default=True,
               help="Adam's learning rate (constant).")
 @click.option("--train-encoder", is_flag=True,
               help="Also train the image encoder (slower per step; by default it is frozen).")
@@ -59,8 +59,8 @@ def finetune_command(scene_dir: Path, out: Path, minutes: float | None, steps: i
     click.echo(summary(result))
     if result.stopped == "interrupted":
         if result.checkpoint is not None:
-            click.echo(f"Use it with: insertnerf render {scene_dir} --checkpoint {out} --out VIDEO_DIR; continue "
-                       f"with: insertnerf finetune {scene_dir} --checkpoint {out} --out MORE.pt", err=True)
+            click.echo(f"Use it with render or eval --checkpoint {out}; to go on, pass it as --checkpoint to another "
+                       "finetune with a new --out.", err=True)
         raise SystemExit(130)
 
 

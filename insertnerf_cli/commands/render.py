@@ -41,7 +41,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
               help="Frames of the path [default: 30; for --path input every input view].")
 @click.option("--fps", type=FiniteFloat(min=0, min_open=True), default=DEFAULT_FPS, show_default=True,
               help="Frame rate of the videos.")
-@click.option("--finetune", "finetune_minutes", type=click.FloatRange(min=0, min_open=True),
+@click.option("--finetune", "finetune_minutes", type=FiniteFloat(min=0, min_open=True),
               help="First fine-tune the weights on SCENE_DIR's own photos for this many minutes (kept in "
                    "OUT/finetune.pt and reused by a re-run; see `insertnerf finetune`).")
 @model_options
