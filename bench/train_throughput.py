@@ -4,6 +4,7 @@
     python3 bench/train_throughput.py --conditioning concat  # the concatenation ablation
     python3 bench/train_throughput.py --dataset data/ --steps 40 --threads 2
     python3 bench/train_throughput.py --batch-scenes 2       # 2 scenes per step, 256 rays each
+    python3 bench/train_throughput.py --precision bf16 --compile
 
 It runs the real training loop (scene draws on the device, the decoded training set, nearest-view pool, encode,
 both passes, losses, backward, Adam) through ``insertnerf_cli.training.train`` and reads the per-step throughput back from
@@ -80,13 +81,15 @@ def main() -> None:
     parser.add_argument("--data-budget-mb", type=int, default=TrainConfig.data_budget_mb,
                         help="0 reads the training views from disk each step (the streamed path)")
     parser.add_argument("--scenes", type=int, default=3, help="scenes of the written dataset")
+    parser.add_argument("--precision", choices=["fp32", "bf16"], default="fp32")
+    parser.add_argument("--compile", action="store_true", help="torch.compile the step (compiles in the warm-up)")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     model = ModelConfig(conditioning=args.conditioning)
     config = TrainConfig(model=model, steps=args.warmup + args.steps, rays=args.rays, resolution=args.resolution,
                          val_every=NEVER, ckpt_every=NEVER, log_every=1, batch_scenes=args.batch_scenes,
-                         data_budget_mb=args.data_budget_mb)
+                         data_budget_mb=args.data_budget_mb, precision=args.precision, compile=args.compile)
     with tempfile.TemporaryDirectory() as tmp:
         dataset = args.dataset or Path(tmp) / "data"
         if args.dataset is None:
@@ -101,7 +104,7 @@ def main() -> None:
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # ru_maxrss is in KiB on Linux
     print(f"config: {args.conditioning}, {model.samples_coarse}+{model.samples_fine} samples, "
           f"{model.num_views} source views, {config.rays} rays/step over {args.batch_scenes or 'default'} "
-          f"scene(s), {args.resolution} px, "
+          f"scene(s), {args.resolution} px, {args.precision}{', compiled' if args.compile else ''}, "
           f"{torch.get_num_threads()} torch threads")
     print(f"parameters: {parameter_counts(model)}")
     print(f"throughput: {rays_per_s:,.0f} rays/s ({seconds / len(measured):.3f} s/step over {len(measured)} steps "

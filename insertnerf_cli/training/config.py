@@ -5,7 +5,7 @@ import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import torch
 
@@ -39,6 +39,10 @@ class TrainConfig:
             default of the training device (default_batch_scenes), fixed when the run starts.
         data_budget_mb: the training images (uint8) are decoded once and kept on the training device when they
             fit this budget; a larger set is read from disk through the image cache each step (0: always).
+        precision: "fp32", or "bf16" for the training step under bf16 autocast (validation stays float32).
+            Float32 by default on every device: bf16 was no faster on the CPU (docs/benchmarks.md, issue 9) and
+            is not measured on a GPU yet.
+        compile: run the training objective through torch.compile (not measured to help yet; off by default).
     """
 
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -59,6 +63,8 @@ class TrainConfig:
     cache_mb: int = 1024
     batch_scenes: int | None = None
     data_budget_mb: int = 4096
+    precision: Literal["fp32", "bf16"] = "fp32"
+    compile: bool = False
 
     def __post_init__(self) -> None:
         try:

@@ -219,7 +219,8 @@ def _train_step(s: Session, divergence: _Divergence) -> LossTerms:
     draw, batch = s.stream.next()
     set_learning_rates(s)
     s.optimizer.zero_grad(set_to_none=True)
-    terms = s.objective(batch.views, batch.rays, batch.target_rgb, scenes)
+    with torch.autocast(s.ctx.device.type, dtype=torch.bfloat16, enabled=s.config.precision == "bf16"):
+        terms = s.objective(batch.views, batch.rays, batch.target_rgb, scenes)
     divergence.record(terms.total, s.step + 1, s.data.groups[draw.group].scene_index[draw.scenes])
     terms.total.backward()
     s.optimizer.step()

@@ -1,0 +1,33 @@
+"""`train --precision bf16`: the step runs under bf16 autocast (so its result differs from float32's), the weights
+stay float32 and finite, and the setting is saved with the run."""
+from __future__ import annotations
+
+import json
+
+import torch
+from click.testing import CliRunner
+from test_train import cli_args, dataset, tiny_config  # noqa: F401  (fixtures)
+
+from insertnerf_cli.cli import cli
+
+
+def _weights(run) -> dict[str, torch.Tensor]:
+    return torch.load(run / "checkpoints" / "last.pt", weights_only=True)["model"]
+
+
+def test_bf16_steps_are_autocast_and_keep_float32_weights(dataset, tiny_config, tmp_path):  # noqa: F811
+    runs = {}
+    for precision in ("fp32", "bf16"):
+        run = tmp_path / precision
+        result = CliRunner().invoke(cli, cli_args(dataset, run, tiny_config, "--steps", "2", "--precision", precision))
+        assert result.exit_code == 0, result.output
+        assert json.loads((run / "checkpoints" / "config.json").read_text())["train"]["precision"] == precision
+        runs[precision] = _weights(run)
+    floats = [n for n, t in runs["bf16"].items() if t.is_floating_point()]
+    assert all(runs["bf16"][n].dtype == torch.float32 and torch.isfinite(runs["bf16"][n]).all() for n in floats)
+    assert any(not torch.equal(runs["bf16"][n], runs["fp32"][n]) for n in floats)  # autocast was in effect
+
+
+def test_an_unknown_precision_is_refused(dataset, tiny_config, tmp_path):  # noqa: F811
+    result = CliRunner().invoke(cli, cli_args(dataset, tmp_path / "run", tiny_config, "--precision", "fp16"))
+    assert result.exit_code == 2 and "fp16" in result.output and not (tmp_path / "run").exists()
