@@ -82,6 +82,7 @@ def main() -> None:
                         help="0 reads the training views from disk each step (the streamed path)")
     parser.add_argument("--scenes", type=int, default=3, help="scenes of the written dataset")
     parser.add_argument("--precision", choices=["fp32", "bf16"], default="fp32")
+    parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--compile", action="store_true", help="torch.compile the step (compiles in the warm-up)")
     args = parser.parse_args()
     if args.threads:
@@ -95,7 +96,7 @@ def main() -> None:
         if args.dataset is None:
             write_dataset(dataset, args.resolution, scenes=args.scenes, views=24)
         start = time.monotonic()
-        train(dataset, Path(tmp) / "run", config, torch.device("cpu"))
+        train(dataset, Path(tmp) / "run", config, torch.device(args.device))
         wall = time.monotonic() - start
         lines = [json.loads(line) for line in (Path(tmp) / "run" / "metrics.jsonl").read_text().splitlines()]
     measured = [m for m in lines if m["split"] == "train" and m["step"] > args.warmup]
@@ -110,6 +111,8 @@ def main() -> None:
     print(f"throughput: {rays_per_s:,.0f} rays/s ({seconds / len(measured):.3f} s/step over {len(measured)} steps "
           f"after {args.warmup} warm-up; whole run {wall:.1f} s)")
     print(f"peak memory (RSS): {peak_mb:,.0f} MiB")
+    if torch.device(args.device).type == "cuda":  # utilisation: run `nvidia-smi dmon -s u` beside it
+        print(f"peak GPU memory: {torch.cuda.max_memory_allocated() / 2 ** 20:,.0f} MiB")
 
 
 if __name__ == "__main__":
