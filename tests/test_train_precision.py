@@ -31,3 +31,18 @@ def test_bf16_steps_are_autocast_and_keep_float32_weights(dataset, tiny_config, 
 def test_an_unknown_precision_is_refused(dataset, tiny_config, tmp_path):  # noqa: F811
     result = CliRunner().invoke(cli, cli_args(dataset, tmp_path / "run", tiny_config, "--precision", "fp16"))
     assert result.exit_code == 2 and "fp16" in result.output and not (tmp_path / "run").exists()
+
+
+def test_a_compiler_failure_under_compile_is_one_line(dataset, tiny_config, tmp_path, monkeypatch):  # noqa: F811
+    """torch 2.13's inductor failed on this model with dynamic shapes; any such failure must end as one line."""
+    import torch._dynamo.exc as dynamo_exc
+
+    def failing_compile(module, **_):
+        def run(*args, **kwargs):
+            raise dynamo_exc.InternalTorchDynamoError("inductor could not lower\nAttributeError: no python_mod")
+        return run
+
+    monkeypatch.setattr(torch, "compile", failing_compile)
+    result = CliRunner().invoke(cli, cli_args(dataset, tmp_path / "run", tiny_config, "--steps", "2", "--compile"))
+    assert result.exit_code == 1 and "torch.compile failed at step 1" in result.output, result.output
+    assert "no python_mod" in result.output and "Traceback" not in result.output

@@ -219,8 +219,15 @@ def _train_step(s: Session, divergence: _Divergence) -> LossTerms:
     draw, batch = s.stream.next()
     set_learning_rates(s)
     s.optimizer.zero_grad(set_to_none=True)
-    with torch.autocast(s.ctx.device.type, dtype=torch.bfloat16, enabled=s.config.precision == "bf16"):
-        terms = s.objective(batch.views, batch.rays, batch.target_rgb, scenes)
+    try:
+        with torch.autocast(s.ctx.device.type, dtype=torch.bfloat16, enabled=s.config.precision == "bf16"):
+            terms = s.objective(batch.views, batch.rays, batch.target_rgb, scenes)
+    except Exception as err:  # --compile is opt-in: torch's compiler failing is one line, not its stack
+        if not (s.config.compile and type(err).__module__.startswith(("torch._dynamo", "torch._inductor"))):
+            raise
+        first = (str(err).strip().splitlines() or [""])[-1][:200]
+        raise UserError(f"torch.compile failed at step {s.step + 1} ({type(err).__name__}: {first}); train "
+                        "without --compile (checkpoints already written are kept; --resume goes on from them).") from None
     divergence.record(terms.total, s.step + 1, s.data.groups[draw.group].scene_index[draw.scenes])
     terms.total.backward()
     s.optimizer.step()
