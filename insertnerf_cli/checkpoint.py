@@ -7,6 +7,7 @@ in the checkpoint, never from command-line flags.
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -162,6 +163,17 @@ def bundled_checkpoint() -> Path:
         raise UserError(f"this install has no bundled pretrained weights ({path} is missing); pass "
                         "--checkpoint RUN_DIR/checkpoints/last.pt from `insertnerf train`.")
     return path
+
+
+def checkpoint_sha256(path: Path) -> str:
+    """The SHA-256 of a checkpoint file: what render records to tell whose weights made its frames."""
+    if not path.is_file():
+        raise UserError(f"checkpoint {path} does not exist; pass --checkpoint with a file from `insertnerf train`")
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def _one_line(err: BaseException) -> str:

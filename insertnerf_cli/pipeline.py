@@ -8,7 +8,6 @@ eval: held-out views (the test split, else every 8th) rendered from the nearest 
 """
 from __future__ import annotations
 
-import hashlib
 import math
 import sys
 import time
@@ -229,16 +228,6 @@ def _load_model(checkpoint: Path, device: str) -> torch.nn.Module:
     return load_model(checkpoint, torch.device(device))[0]
 
 
-def _sha256(path: Path) -> str:
-    if not path.is_file():
-        raise UserError(f"checkpoint {path} does not exist; pass --checkpoint with a file from `insertnerf train`")
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 class _Renderer:
     """Renders target cameras of a normalised scene from their nearest reference views, caching encodings."""
 
@@ -282,9 +271,11 @@ class _Renderer:
 # ---------------------------------------------------------------------------------------------------- render
 def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, images: list | None) -> dict:
     """Everything that changes the frames: a re-run with an equal state may resume."""
+    from .checkpoint import checkpoint_sha256
+
     return {"version": STATE_VERSION, "scene": str(scene_dir.resolve()), "images": images, "path": config.path,
             "frames": config.frames, "resolution": config.resolution, "views": config.views,
-            "checkpoint_sha256": _sha256(checkpoint),
+            "checkpoint_sha256": checkpoint_sha256(checkpoint),
             **({"finetune_minutes": config.finetune_minutes} if config.finetune_minutes is not None else {})}
 
 

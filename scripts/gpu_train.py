@@ -24,6 +24,10 @@ import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from insertnerf_cli.atomic import process_alive  # noqa: E402  (the liveness rule of atomic writes)
+
 INSERTNERF = [sys.executable, "-c", "from insertnerf_cli.cli import main; main()"]
 BROUGHT_BACK = ("checkpoints/last.pt", "checkpoints/best.pt", "checkpoints/config.json", "metrics.jsonl", "splits.json")
 
@@ -77,8 +81,9 @@ def start(args: argparse.Namespace) -> None:
 def _alive(run: Path) -> bool:
     try:
         pid = int(_pid_file(run).read_text())
-        os.kill(pid, 0)
     except (OSError, ValueError):
+        return False
+    if not process_alive(pid):
         return False
     try:  # a finished child of a still-running caller is a zombie: reap it, it is not training
         return os.waitpid(pid, os.WNOHANG) == (0, 0)

@@ -6,7 +6,6 @@ record is written only after a completed run, so an interrupted fine-tune is nev
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -14,6 +13,7 @@ from pathlib import Path
 import torch
 
 from ..atomic import write_json
+from ..checkpoint import checkpoint_sha256
 from ..config import config_to_json
 from .loop import FinetuneConfig, finetune
 
@@ -30,15 +30,17 @@ def cached_finetune(scene_dir: Path, out_dir: Path, base: Path, config: Finetune
         KeyboardInterrupt: Ctrl-C stopped the fine-tune (the partial weights are not recorded as finished).
     """
     weights, record = out_dir / WEIGHTS, out_dir / RECORD
-    key = {"scene": str(Path(scene_dir).resolve()), "base_sha256": _sha256(base), "config": config_to_json(config)}
-    if _read(record).get("key") == key and weights.is_file() and _read(record).get("sha256") == _sha256(weights):
+    key = {"scene": str(Path(scene_dir).resolve()), "base_sha256": checkpoint_sha256(base),
+           "config": config_to_json(config)}
+    done = _read(record)
+    if done.get("key") == key and weights.is_file() and done.get("sha256") == checkpoint_sha256(weights):
         print(f"reusing the fine-tuned weights in {weights} (same scene, base and settings)", file=sys.stderr)
         return weights
     record.unlink(missing_ok=True)
     result = finetune(scene_dir, weights, config, device, base=base, overwrite=True)
     if result.stopped == "interrupted" or result.checkpoint is None:
         raise KeyboardInterrupt
-    write_json(record, {"key": key, "sha256": _sha256(weights), "steps": result.steps,
+    write_json(record, {"key": key, "sha256": checkpoint_sha256(weights), "steps": result.steps,
                         "minutes": result.elapsed_s / 60.0, "train_psnr": result.train_psnr})
     return weights
 
@@ -49,11 +51,3 @@ def _read(path: Path) -> dict:
     except (OSError, ValueError):
         return {}
     return data if isinstance(data, dict) else {}
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
