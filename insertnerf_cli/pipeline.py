@@ -56,6 +56,8 @@ class RenderConfig:
         checkpoint: generator weights (None = the bundled pretrained ones).
         device: torch device name (cpu or cuda), resolved once by the command.
         chunk: rays per network call (bounds memory).
+        exact: every ray gets its own coarse pass and every pixel a fine pass (render.EXACT), instead of the
+            default shortcuts (render.Shortcuts: within 0.3 dB, docs/benchmarks.md).
         overwrite: replace the outputs of a different earlier run in the output folder.
         finetune_minutes: first fine-tune the weights on the scene for this long (cached as OUT/finetune.pt).
     """
@@ -68,6 +70,7 @@ class RenderConfig:
     checkpoint: Path | None = None
     device: str = "cpu"
     chunk: int = DEFAULT_CHUNK
+    exact: bool = False
     overwrite: bool = False
     finetune_minutes: float | None = None
 
@@ -111,7 +114,7 @@ def _duration(seconds: float) -> str:
 
 @dataclass(frozen=True)
 class EvalConfig:
-    """Settings of one `eval` run (views, resolution, checkpoint, device, chunk as in RenderConfig).
+    """Settings of one `eval` run (views, resolution, checkpoint, device, chunk, exact as in RenderConfig).
 
     Attributes:
         out_dir: folder for side-by-side images (render | truth | error), or None for none.
@@ -125,6 +128,7 @@ class EvalConfig:
     checkpoint: Path | None = None
     device: str = "cpu"
     chunk: int = DEFAULT_CHUNK
+    exact: bool = False
     out_dir: Path | None = None
     json_path: Path | None = None
     max_views: int | None = None
@@ -234,6 +238,7 @@ class _Renderer:
     def __init__(self, model: torch.nn.Module, scene, config: RenderConfig | EvalConfig, size: tuple[int, int]) -> None:
         self.model = model
         self.scene, self.size, self.k, self.chunk = scene, size, config.views, config.chunk
+        self.exact = config.exact
         self.method = "dist" if scene.layout == "forward" else "vector"
         self.cache: OrderedDict[tuple[int, ...], object] = OrderedDict()
 
@@ -262,10 +267,11 @@ class _Renderer:
 
     def render(self, camera: Cameras, near: float, far: float, exclude: list[int]):
         """(ImageOutput of ``camera`` (1), the reference indices used); never uses an index in ``exclude``."""
-        from .render import render_image
+        from .render import EXACT, Shortcuts, render_image
 
         refs = self.references(camera.c2w[0], exclude)
-        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk), refs
+        shortcuts = EXACT if self.exact else Shortcuts()
+        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, shortcuts), refs
 
 
 # ---------------------------------------------------------------------------------------------------- render
@@ -274,7 +280,7 @@ def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, image
     from .checkpoint import checkpoint_sha256
 
     return {"version": STATE_VERSION, "scene": str(scene_dir.resolve()), "images": images, "path": config.path,
-            "frames": config.frames, "resolution": config.resolution, "views": config.views,
+            "frames": config.frames, "resolution": config.resolution, "views": config.views, "exact": config.exact,
             "checkpoint_sha256": checkpoint_sha256(checkpoint),
             **({"finetune_minutes": config.finetune_minutes} if config.finetune_minutes is not None else {})}
 

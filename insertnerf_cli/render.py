@@ -4,17 +4,20 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator, TypeVar
 
 import torch
 from torch import Tensor
 
 from .cameras import Cameras
 from .compositing import Composite
-from .rays import rays_for_image
+from .rays import Rays, rays_for_image
+from .sampling import RaySamples
 
 if TYPE_CHECKING:
     from .model import EncodedViews, InsertNeRF
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -26,8 +29,37 @@ class ImageOutput:
     opacity: Tensor  # [H, W]
 
 
+@dataclass(frozen=True)
+class Shortcuts:
+    """How much of the exact per-ray work a frame skips (render and eval use the defaults; tests hold every
+    shortcut to the exact path).
+
+    Attributes:
+        coarse_stride: the coarse pass runs on every coarse_stride-th pixel of each row and column (and the last
+            ones); every other pixel places its fine samples by the bilinear blend of the weights of its four
+            nearest coarse rays. Neighbouring rays cross the same surfaces at nearly the same depth, and every ray
+            of a frame has the same coarse sample depths (one near/far), so the weights carry over. 1: exact.
+        empty_opacity: a pixel whose four nearest coarse rays all see less opacity than this shows background and
+            gets no fine pass. 0: never skip.
+    """
+
+    coarse_stride: int = 2
+    empty_opacity: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if self.coarse_stride < 1 or not 0.0 <= self.empty_opacity < 1.0:
+            raise ValueError(f"coarse_stride must be >= 1 and empty_opacity in [0, 1), got {self}")
+
+    @property
+    def exact(self) -> bool:
+        return self.coarse_stride == 1 and self.empty_opacity == 0.0
+
+
+EXACT = Shortcuts(coarse_stride=1, empty_opacity=0.0)
+
+
 def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, near: float | Tensor,
-                 far: float | Tensor, chunk: int = 128) -> ImageOutput:
+                 far: float | Tensor, chunk: int = 128, shortcuts: Shortcuts = Shortcuts()) -> ImageOutput:
     """Render one full frame of ``camera`` (a Cameras of length 1) from the encoded reference views.
 
     Rays go through the network ``chunk`` at a time without autograd, so peak memory is bounded by the chunk
@@ -41,6 +73,7 @@ def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, 
             floats) inside the CPU caches: with 10 views and 64 samples, 128 rays per call rendered 30% faster than
             512 and 2x faster than 1024 (bench/model_speed.py); above glibc's 32 MB mmap threshold every
             allocation also page-faults.
+        shortcuts: the work skipped (Shortcuts); EXACT runs every ray's own coarse and fine pass.
     """
     if len(camera) != 1:
         raise ValueError(f"render_image renders one camera, got {len(camera)}")
@@ -50,16 +83,105 @@ def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, 
     bounds = torch.as_tensor([near, far], dtype=param.dtype, device=param.device).reshape(2)
     rays = rays_for_image(camera, bounds[:1], bounds[1:])
 
-    def render_chunk(start: int) -> Composite:
-        with torch.inference_mode():  # thread-local: entered in the worker that runs the chunk
-            return model.render(encoded, rays[start:start + chunk])
-
     with _chunk_workers(param.device) as workers:
         with ThreadPoolExecutor(workers) as pool:
-            outs = list(pool.map(render_chunk, range(0, len(rays), chunk)))
-    return ImageOutput(rgb=torch.cat([o.rgb for o in outs]).reshape(height, width, 3).clamp(0.0, 1.0),
-                       depth=torch.cat([o.depth for o in outs]).reshape(height, width),
-                       opacity=torch.cat([o.opacity for o in outs]).reshape(height, width))
+            def chunked(work: Callable[[Tensor], T], count: int) -> list[T]:
+                starts = range(0, count, chunk)
+                return list(pool.map(lambda s: _no_grad(work, torch.arange(s, min(s + chunk, count),
+                                                                           device=param.device)), starts))
+
+            if shortcuts.exact:
+                outs = chunked(lambda i: model.render(encoded, rays[i]), len(rays))
+                rgb, depth, opacity = (torch.cat([getattr(o, k) for o in outs]) for k in ("rgb", "depth", "opacity"))
+            else:
+                rgb, depth, opacity = _render_with_shortcuts(model, encoded, rays, (height, width), shortcuts,
+                                                             chunked, model.background)
+    return ImageOutput(rgb=rgb.reshape(height, width, 3).clamp(0.0, 1.0), depth=depth.reshape(height, width),
+                       opacity=opacity.reshape(height, width))
+
+
+def _no_grad(work: Callable[[Tensor], T], index: Tensor) -> T:
+    with torch.inference_mode():  # thread-local: entered in the worker that runs the chunk
+        return work(index)
+
+
+def _render_with_shortcuts(model: "InsertNeRF", encoded: "EncodedViews", rays: Rays, size: tuple[int, int],
+                           shortcuts: Shortcuts, chunked: Callable, background: Tensor) -> tuple[Tensor, ...]:
+    """(rgb [R, 3], depth [R], opacity [R]) of the frame's R = H * W rays: the coarse pass on a grid of every
+    coarse_stride-th pixel, fine samples placed by the blend of the nearest grid rays, empty pixels skipped."""
+    grid = CoarseGrid(*size, shortcuts.coarse_stride, rays.origins.device)
+    grid_rays = rays[grid.index]
+    passes = chunked(lambda i: model.coarse_weights(encoded, grid_rays[i]), len(grid_rays))
+    grid_weights = torch.cat([w for _, w in passes])  # [G, S_c]
+    weights = grid.blend(grid_weights)  # [R, S_c]
+    live = (grid.nearest_max(grid_weights.sum(dim=-1)) >= shortcuts.empty_opacity).nonzero()[:, 0]  # [R_live]
+    # One near/far for the whole frame: every ray has the coarse sample depths of the first grid ray.
+    t, edges = passes[0][0].t[:1], passes[0][0].edges[:1]  # [1, S_c], [1, S_c + 1]
+
+    def fine(i: Tensor) -> Composite:
+        rows = live[i]
+        return model.render_fine(encoded, rays[rows], RaySamples(t.expand(len(rows), -1),
+                                                                 edges.expand(len(rows), -1)), weights[rows])
+
+    outs = chunked(fine, len(live))
+    rgb = background.to(weights).expand(len(rays), 3).clone()
+    depth = t.mean().expand(len(rays)).clone()  # what compositing gives a ray that sees nothing
+    opacity = weights.new_zeros(len(rays))
+    if outs:
+        rgb[live] = torch.cat([o.rgb for o in outs])
+        depth[live] = torch.cat([o.depth for o in outs])
+        opacity[live] = torch.cat([o.opacity for o in outs])
+    return rgb, depth, opacity
+
+
+class CoarseGrid:
+    """The pixels of an H x W frame that get a coarse pass: every ``stride``-th row and column, plus the last
+    ones, so that every pixel lies between grid pixels and none is extrapolated.
+
+    Attributes:
+        index: [G] row-major pixel indices of the grid pixels (G = rows x columns of the grid).
+    """
+
+    def __init__(self, height: int, width: int, stride: int, device: torch.device) -> None:
+        self.rows, self.cols = _grid_line(height, stride, device), _grid_line(width, stride, device)
+        self.width = width
+        self.index = (self.rows[:, None] * width + self.cols[None, :]).reshape(-1)  # [G]
+        (self.r0, self.r1, self.fr), (self.c0, self.c1, self.fc) = (_between(self.rows, height),
+                                                                    _between(self.cols, width))
+
+    def blend(self, values: Tensor) -> Tensor:
+        """[G, C] values at the grid pixels -> [H * W, C] bilinear blend of the four around each pixel."""
+        corners = self._corners(values)
+        fr, fc = self.fr[:, None, None].to(values), self.fc[None, :, None].to(values)
+        top = corners[0] * (1 - fc) + corners[1] * fc
+        bottom = corners[2] * (1 - fc) + corners[3] * fc
+        return (top * (1 - fr) + bottom * fr).reshape(-1, values.shape[-1])
+
+    def nearest_max(self, values: Tensor) -> Tensor:
+        """[G] values at the grid pixels -> [H * W] the largest of the four around each pixel."""
+        corners = self._corners(values[:, None])
+        return torch.stack(corners).amax(dim=0).reshape(-1)
+
+    def _corners(self, values: Tensor) -> list[Tensor]:
+        """The [H, W, C] values of the grid pixels above-left, above-right, below-left, below-right of each pixel."""
+        table = values.reshape(len(self.rows), len(self.cols), -1)
+        return [table[r][:, c] for r in (self.r0, self.r1) for c in (self.c0, self.c1)]
+
+
+def _grid_line(size: int, stride: int, device: torch.device) -> Tensor:
+    """Grid positions along one axis: 0, stride, 2 stride, ... and size - 1."""
+    line = torch.arange(0, size, stride, device=device)
+    return line if line[-1] == size - 1 else torch.cat([line, line.new_tensor([size - 1])])
+
+
+def _between(line: Tensor, size: int) -> tuple[Tensor, Tensor, Tensor]:
+    """For every pixel 0..size-1: the grid positions below and above it (indices into ``line``) and how far
+    along it is from the one to the other (0 on a grid pixel)."""
+    pixels = torch.arange(size, device=line.device)
+    upper = torch.searchsorted(line, pixels).clamp(max=len(line) - 1)  # first grid position >= pixel
+    lower = torch.where(line[upper] == pixels, upper, (upper - 1).clamp(min=0))
+    span = (line[upper] - line[lower]).clamp(min=1)
+    return lower, upper, (pixels - line[lower]).float() / span
 
 
 @contextmanager

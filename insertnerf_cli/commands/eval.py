@@ -22,7 +22,8 @@ from .render import model_options
 @overwrite_option
 @user_errors
 def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, max_views: int | None, views: int,
-                 resolution: int, checkpoint: Path | None, chunk: int, device: str, overwrite: bool) -> None:
+                 resolution: int, checkpoint: Path | None, chunk: int, exact: bool, device: str,
+                 overwrite: bool) -> None:
     """Score novel-view quality on SCENE_DIR: render each held-out view (the test split, else every 8th view)
     from its nearest other views and compare it with the photo.
 
@@ -31,8 +32,8 @@ def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, 
       insertnerf eval scene/ --json scores.json --out side_by_side/
     """
     config = EvalConfig(views=views, resolution=resolution or None, checkpoint=checkpoint,
-                        device=str(resolve_device(device)), chunk=chunk, out_dir=out_dir, json_path=json_path,
-                        max_views=max_views, overwrite=overwrite)
+                        device=str(resolve_device(device)), chunk=chunk, exact=exact, out_dir=out_dir,
+                        json_path=json_path, max_views=max_views, overwrite=overwrite)
     report = evaluate_scene(scene_dir, config)
     for view in report.views:
         click.echo(f"{view.name}: PSNR {view.psnr:.2f} dB, SSIM {view.ssim:.4f}")

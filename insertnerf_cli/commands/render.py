@@ -12,7 +12,7 @@ from .common import FiniteFloat, device_option, overwrite_option, resolve_device
 
 
 def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
-    """--views, --resolution, --checkpoint, --chunk: shared by render and eval."""
+    """--views, --resolution, --checkpoint, --chunk, --exact: shared by render and eval."""
     options = [
         click.option("--views", type=click.IntRange(min=1), default=DEFAULT_VIEWS, show_default=True,
                      help="Reference views per rendered image (the nearest ones)."),
@@ -23,6 +23,9 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
                      help="Generator weights from `insertnerf train` (default: the bundled pretrained ones)."),
         click.option("--chunk", type=click.IntRange(min=1), default=DEFAULT_CHUNK, show_default=True,
                      help="Rays per network call; lower it if memory runs out."),
+        click.option("--exact", is_flag=True,
+                     help="Give every pixel its own coarse pass and a fine pass (slower). By default the coarse "
+                     "pass runs on every 2nd pixel and background pixels skip the fine pass (within 0.3 dB)."),
     ]
     for option in reversed(options):
         func = option(func)
@@ -49,7 +52,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 @overwrite_option
 @user_errors
 def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float, views: int,
-           resolution: int, checkpoint: Path | None, chunk: int, device: str, overwrite: bool,
+           resolution: int, checkpoint: Path | None, chunk: int, exact: bool, device: str, overwrite: bool,
            finetune_minutes: float | None) -> None:
     """Render novel views of SCENE_DIR into --out: frames, depth maps, videos and cameras.
 
@@ -61,6 +64,6 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
       insertnerf render photos/ --out views/ --frames 60 --resolution 320
     """
     config = RenderConfig(path=path_kind, frames=frames, fps=fps, resolution=resolution or None, views=views,
-                          checkpoint=checkpoint, device=str(resolve_device(device)), chunk=chunk,
+                          checkpoint=checkpoint, device=str(resolve_device(device)), chunk=chunk, exact=exact,
                           overwrite=overwrite, finetune_minutes=finetune_minutes)
     click.echo(render_scene(scene_dir, out_dir, config).line())

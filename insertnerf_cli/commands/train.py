@@ -40,6 +40,9 @@ from .common import device_option, overwrite_option, resolve_device, user_errors
 @click.option("--seed", type=int, help="Seed of the initialisation, the data draws and the hold-out split.")
 @click.option("--model-config", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="JSON file of ModelConfig fields (or a run's checkpoints/config.json).")
+@click.option("--init", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Start from this checkpoint's weights instead of random ones (e.g. the bundled generator for a "
+              "model config that changes only the sample counts: those weights are resampled).")
 @overwrite_option
 @user_errors
 def train(dataset_dir: Path, run_dir: Path, device: str, resume: bool, overwrite: bool,
@@ -61,6 +64,8 @@ def train(dataset_dir: Path, run_dir: Path, device: str, resume: bool, overwrite
         flags["lr_encoder"] = 2.0 * flags["lr"]  # keep GNT's ratio between the extractor and the rest
     if model_config is not None:
         base = with_overrides(base, {}, {"model": read_model_config(model_config)})
+    if flags["init"] is not None:
+        flags["init"] = str(flags["init"].resolve())
     config = with_overrides(base, model_fields, {name.replace("-", "_"): value for name, value in flags.items()})
     result = train_generator(dataset_dir, run_dir, config, torch_device, resume=resume, overwrite=overwrite)
     if result.main_process:

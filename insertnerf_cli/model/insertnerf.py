@@ -61,18 +61,29 @@ class InsertNeRF(nn.Module):
         return RenderOutput(coarse=coarse, fine=fine, dynamic_coarse=dynamic_coarse, dynamic_fine=dynamic_fine)
 
     def render(self, encoded: EncodedViews, rays: Rays) -> Composite:
-        """Inference: the fine composite of R rays, the same as ``forward(..., train=False).fine``.
+        """Inference: the fine composite of R rays, the same as ``forward(..., train=False).fine``."""
+        coarse_samples, weights = self.coarse_weights(encoded, rays)
+        return self.render_fine(encoded, rays, coarse_samples, weights)
+
+    def coarse_weights(self, encoded: EncodedViews, rays: Rays) -> tuple[RaySamples, Tensor]:
+        """Inference: the coarse samples of R rays and their compositing weights [R, S_c].
 
         The coarse pass only places the fine samples, so it stops at the densities: no appearance branch and
         none of the reference-colour composites that training supervises.
         """
         cfg = self.config
         rays = rays.to(device=self.background.device, dtype=self.background.dtype)
-        coarse_samples = stratified_samples(rays, cfg.samples_coarse, jitter=False,
-                                            in_disparity=cfg.sample_in_disparity)
-        coarse = self.observe(encoded, rays, coarse_samples)
+        samples = stratified_samples(rays, cfg.samples_coarse, jitter=False, in_disparity=cfg.sample_in_disparity)
+        coarse = self.observe(encoded, rays, samples)
         _, density = self.coarse_head.geometry(coarse.points, coarse.conds)
-        weights = composite_weights(density, coarse_samples.edges, rays.directions.norm(dim=-1))
+        return samples, composite_weights(density, samples.edges, rays.directions.norm(dim=-1))
+
+    def render_fine(self, encoded: EncodedViews, rays: Rays, coarse_samples: RaySamples,
+                    weights: Tensor) -> Composite:
+        """Inference: the fine composite of R rays whose fine samples follow ``weights`` [R, S_c] on
+        ``coarse_samples`` (their own coarse pass, or one borrowed from neighbouring pixels: render.py)."""
+        cfg = self.config
+        rays = rays.to(device=self.background.device, dtype=self.background.dtype)
         fine_samples = importance_samples(coarse_samples, weights, cfg.samples_fine, jitter=False,
                                           near=rays.near, far=rays.far)
         fine = self.observe(encoded, rays, fine_samples)

@@ -43,6 +43,8 @@ class TrainConfig:
             Float32 by default on every device: bf16 was no faster on the CPU (docs/benchmarks.md, issue 9) and
             is not measured on a GPU yet.
         compile: run the training objective through torch.compile (not measured to help yet; off by default).
+        init: a checkpoint whose weights the run starts from instead of a random initialisation (sample-axis
+            tensors resampled when only the sample counts differ: training/warm_start.py); None: random.
     """
 
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -65,6 +67,7 @@ class TrainConfig:
     data_budget_mb: int = 4096
     precision: Literal["fp32", "bf16"] = "fp32"
     compile: bool = False
+    init: str | None = None
 
     def __post_init__(self) -> None:
         try:

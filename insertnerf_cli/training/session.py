@@ -27,6 +27,7 @@ from .distributed import DistContext
 from .rng import capture_rng, restore_rng
 from .run_dir import (RunFiles, check_run_dir, claim_run, clear_run, read_splits, truncate_metrics,
                       write_run_config, write_splits)
+from .warm_start import warm_start
 
 Say = Callable[[str], None]
 _BYTES_PER_MB = 1 << 20
@@ -85,7 +86,12 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
     # Validate on held-out scenes; a dataset too small to hold any out validates on unseen views instead.
     val_source = val or train[: max(1, config.val_scenes)]
     _seed_everything(config.seed)
-    model = InsertNeRF(config.model).to(ctx.device)
+    model = InsertNeRF(config.model)
+    if checkpoint is None and config.init is not None:
+        started = warm_start(model, read_checkpoint(config.init))
+        say(f"starting from {config.init}: {started.copied} tensors copied, {started.resampled} resampled to "
+            "this model's sample counts")
+    model = model.to(ctx.device)
     optimizer = torch.optim.Adam(param_groups(model, config))
     data = load_training_set(train, config.data_budget_mb, ctx.device, say, show_progress=ctx.is_main)
     assert config.batch_scenes is not None  # fixed by config.with_device_defaults before the session

@@ -1,0 +1,75 @@
+"""Start a model from the weights of a checkpoint with another sample count (``train --init``).
+
+A new configuration that changes only how many samples a ray gets (the `fast` one: 32+16 instead of 64+64) keeps
+every tensor's shape except the few that act along the sample axis: the HyperNet's sample-mixing linear
+(``mix.weight`` [O, S]) and the sampling filter's adjacency factors (``to_nodes`` [N, S], ``from_nodes`` [S, N]).
+Those are resampled along that axis (area averaging, like resizing a 1-D signal), everything else is copied, so
+the new model starts where the trained one is instead of at random.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from ..checkpoint import Checkpoint
+from ..errors import UserError
+
+# The tensors whose sample axis sums over the samples (its entries shrink as samples get denser), by name suffix.
+_SUMS_OVER_SAMPLES = ("mix.weight", "to_nodes")
+# ... and the one that has one row per sample (its entries keep their size).
+_PER_SAMPLE = ("from_nodes",)
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """What ``warm_start`` did: tensors copied as they were, and tensors resampled along the sample axis."""
+
+    copied: int
+    resampled: int
+
+
+def warm_start(model: nn.Module, checkpoint: Checkpoint) -> WarmStart:
+    """Load ``checkpoint``'s weights into ``model``, resampling sample-axis tensors whose sample count differs.
+
+    A separate fine head missing from a shared-head checkpoint starts as a copy of its coarse head. Any other
+    difference (a width, a layer, a name) is a UserError: that is not the same network with other samples.
+    """
+    own = model.state_dict()
+    theirs = dict(checkpoint.model_state)
+    for name in own:
+        if name.startswith("fine_head.") and name not in theirs:
+            theirs[name] = theirs.get("coarse_head." + name.removeprefix("fine_head."))
+    missing = sorted(n for n in own if theirs.get(n) is None)
+    if missing:
+        raise UserError(f"--init {checkpoint.path} lacks {len(missing)} tensors of this model (e.g. {missing[0]!r}): "
+                        "it has another architecture; only the sample counts may differ.")
+    state: dict[str, Tensor] = {}
+    resampled = 0
+    for name, target in own.items():
+        source = theirs[name]
+        if source.shape != target.shape:
+            source = _resample(name, source, target.shape, checkpoint)
+            resampled += 1
+        state[name] = source.to(target.dtype)
+    model.load_state_dict(state)
+    return WarmStart(copied=len(state) - resampled, resampled=resampled)
+
+
+def _resample(name: str, source: Tensor, shape: torch.Size, checkpoint: Checkpoint) -> Tensor:
+    """``source`` resized to ``shape`` along its sample axis (the last of [O, S] or [N, S]; the first of [S, N])."""
+    if name.endswith(_SUMS_OVER_SAMPLES) and source.shape[:-1] == shape[:-1]:
+        rows = source
+    elif name.endswith(_PER_SAMPLE) and source.shape[1:] == shape[1:]:
+        rows = source.T
+    else:
+        raise UserError(f"--init {checkpoint.path}: {name!r} is {tuple(source.shape)} there and {tuple(shape)} "
+                        "here; only the sample counts may differ between the checkpoint and the new model.")
+    old, new = rows.shape[-1], (shape[-1] if rows is source else shape[0])
+    resized = F.interpolate(rows[None].float(), size=new, mode="linear" if new > old else "area",
+                            align_corners=False if new > old else None)[0]
+    if rows is source:
+        return resized * (old / new)  # a sum over S samples keeps its value over the new count
+    return resized.T.contiguous()

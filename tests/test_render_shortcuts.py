@@ -1,0 +1,87 @@
+"""The frame renderer's shortcuts (coarse pass on a pixel grid, empty pixels skipped) against the exact path."""
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from insertnerf_cli.checkpoint import bundled_checkpoint, load_model
+from insertnerf_cli.compositing import psnr
+from insertnerf_cli.model import InsertNeRF
+from insertnerf_cli.render import EXACT, CoarseGrid, Shortcuts, render_image
+from model_fixtures import FAR, NEAR, TINY, orbit_cameras, sphere_images, sphere_views  # noqa: F401
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.mark.parametrize("height, width, stride", [(7, 9, 2), (8, 8, 3), (5, 1, 2), (6, 6, 1), (4, 5, 10)])
+def test_grid_blend_reproduces_linear_functions_and_keeps_grid_values(height, width, stride):
+    grid = CoarseGrid(height, width, stride, torch.device("cpu"))
+    rows, cols = grid.index // width, grid.index % width
+    assert rows.max() == height - 1 and cols.max() == width - 1  # the last row and column are on the grid
+    linear = torch.stack([2.0 * rows + 0.5 * cols + 1.0, -rows.float() + 3 * cols], dim=-1)  # [G, 2]
+    yy, xx = torch.meshgrid(torch.arange(height), torch.arange(width), indexing="ij")
+    truth = torch.stack([2.0 * yy + 0.5 * xx + 1.0, -yy.float() + 3 * xx], dim=-1).reshape(-1, 2)
+    torch.testing.assert_close(grid.blend(linear), truth)
+    values = torch.rand(len(grid.index), 3)
+    torch.testing.assert_close(grid.blend(values)[grid.index], values)  # grid pixels keep their own values
+
+
+def test_grid_nearest_max_is_the_largest_of_the_surrounding_grid_pixels():
+    grid = CoarseGrid(5, 5, 2, torch.device("cpu"))  # grid pixels at rows/cols 0, 2, 4
+    values = torch.zeros(len(grid.index))
+    values[4] = 1.0  # the grid pixel (2, 2), the centre
+    near = grid.nearest_max(values).reshape(5, 5)
+    expected = torch.zeros(5, 5)
+    expected[1:4, 1:4] = 1.0  # every pixel that has (2, 2) among its four surrounding grid pixels
+    torch.testing.assert_close(near, expected)
+
+
+def test_stride_one_without_skipping_is_the_exact_path_in_any_chunking():
+    torch.manual_seed(0)
+    model = InsertNeRF(TINY).eval()
+    camera = orbit_cameras(1, 8, phase=0.4)
+    with torch.no_grad():
+        encoded = model.encode(sphere_views(3, 16))
+    exact = render_image(model, encoded, camera, NEAR, FAR, chunk=10_000, shortcuts=EXACT)
+    grid_path = render_image(model, encoded, camera, NEAR, FAR, chunk=7, shortcuts=Shortcuts(1, 1e-12))
+    assert (grid_path.opacity > 0).all()  # nothing was skipped: the comparison covers the fine pass of every ray
+    for name in ("rgb", "depth", "opacity"):
+        torch.testing.assert_close(getattr(grid_path, name), getattr(exact, name))
+
+
+@pytest.mark.parametrize("stride", [2, 3])
+def test_coarse_grid_costs_little_against_the_exact_path_with_the_bundled_weights(stride):
+    model, _ = load_model(bundled_checkpoint(), torch.device("cpu"))
+    size = 32
+    camera = orbit_cameras(1, size, phase=0.4)
+    with torch.inference_mode():
+        encoded = model.encode(sphere_views(4, size))
+    exact = render_image(model, encoded, camera, NEAR, FAR, shortcuts=EXACT)
+    fast = render_image(model, encoded, camera, NEAR, FAR, shortcuts=Shortcuts(stride, 0.0))
+    truth = sphere_images(camera)[0]
+    assert psnr(((fast.rgb - exact.rgb) ** 2).mean()) > 25.0  # 30 and 26 dB here; 40-44 dB at 100 px
+    # no worse against the true image than the exact path, to within 0.3 dB
+    assert psnr(((fast.rgb - truth) ** 2).mean()) > psnr(((exact.rgb - truth) ** 2).mean()) - 0.3
+
+
+def test_empty_pixels_are_skipped_and_show_the_background_as_the_exact_path_does():
+    torch.manual_seed(0)
+    model = InsertNeRF(dataclasses.replace(TINY, density_bias=-40.0)).eval()  # a field that is empty everywhere
+    camera = orbit_cameras(1, 8, phase=0.4)
+    with torch.no_grad():
+        encoded = model.encode(sphere_views(3, 16))
+    exact = render_image(model, encoded, camera, NEAR, FAR, shortcuts=EXACT)
+    skipped = render_image(model, encoded, camera, NEAR, FAR, shortcuts=Shortcuts(2, 1e-3))
+    assert (skipped.opacity == 0).all()  # no fine pass ran: zero opacity is what a skipped pixel gets
+    torch.testing.assert_close(skipped.rgb, exact.rgb, atol=1e-4, rtol=0)
+    torch.testing.assert_close(skipped.depth, exact.depth, atol=1e-3, rtol=0)
+
+
+def test_shortcuts_refuse_nonsense():
+    with pytest.raises(ValueError):
+        Shortcuts(coarse_stride=0)
+    with pytest.raises(ValueError):
+        Shortcuts(empty_opacity=1.0)
+    assert EXACT.exact and not Shortcuts().exact
