@@ -6,8 +6,8 @@
     python3 bench/hostile.py --installed      # run `insertnerf` from PATH instead of this checkout's code
 
 It builds its own tiny inputs (a `synth` dataset of 32 px scenes, a 2-step checkpoint of a tiny model, 16 photos
-of a ray-cast room), then runs the cases of bench/hostile_cases.py, bench/hostile_inputs.py and
-bench/hostile_finetune.py. What a case must show comes from the developer brief and issue 12, not from today's
+of a ray-cast room), then runs the cases of bench/hostile_cases.py, bench/hostile_inputs.py,
+bench/hostile_finetune.py and bench/hostile_models.py. What a case must show comes from the developer brief and issue 12, not from today's
 code: bad input ends with a short error (at most 3 lines besides progress bars: the error and a hint) and an exit
 status of 1-125; valid input exits 0;
 Ctrl-C exits non-zero; no step prints a Python traceback; every input file and every file of the user's put into
@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT))  # this checkout's insertnerf_cli, for the fixture
 import hostile_cases  # noqa: E402,F401  (registers its cases; bench/ is on sys.path when run as a script)
 import hostile_finetune  # noqa: E402,F401
 import hostile_inputs  # noqa: E402,F401
+import hostile_models  # noqa: E402,F401
 from hostile_kit import CASES, NOBODY, STEP_TIMEOUT_S, Fixtures, Plan, Workspace, run_insertnerf  # noqa: E402
 
 TRACEBACK = ("Traceback (most recent call last)", "Fatal Python error", "Check failure stack trace")

@@ -22,7 +22,8 @@ from .errors import UserError
 
 CHECKPOINT_FORMAT = "insertnerf-checkpoint"
 CHECKPOINT_VERSION = 1
-BUNDLED_NAME = "insertnerf.pt"
+# The pretrained generators shipped in the package, by the name `--model` takes (docs/model-card.md).
+BUNDLED_MODELS = {"default": "insertnerf.pt", "fast": "insertnerf-fast.pt"}
 
 
 @dataclass(frozen=True)
@@ -156,11 +157,11 @@ def load_model(path: str | Path, device: torch.device) -> tuple[nn.Module, Model
     return model, checkpoint.model_config
 
 
-def bundled_checkpoint() -> Path:
-    """The pretrained generator shipped in the package (insertnerf_cli/weights/insertnerf.pt)."""
-    path = Path(__file__).resolve().parent / "weights" / BUNDLED_NAME
+def bundled_checkpoint(model: str = "default") -> Path:
+    """A pretrained generator shipped in the package: "default" (64+64 samples) or "fast" (32+16 samples)."""
+    path = Path(__file__).resolve().parent / "weights" / BUNDLED_MODELS[model]
     if not path.is_file():
-        raise UserError(f"this install has no bundled pretrained weights ({path} is missing); pass "
+        raise UserError(f"this install has no bundled {model} weights ({path} is missing); pass "
                         "--checkpoint RUN_DIR/checkpoints/last.pt from `insertnerf train`.")
     return path
 

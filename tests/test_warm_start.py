@@ -78,3 +78,19 @@ def test_train_init_starts_from_the_checkpoint_and_records_it(tiny_checkpoint, t
     name = next(n for n in saved.model_state if n.startswith("encoder."))
     # one step at a learning rate of 1e-12 leaves the copied weights where the checkpoint had them
     torch.testing.assert_close(saved.model_state[name], source.state_dict()[name], atol=1e-6, rtol=0)
+
+
+def test_init_inside_the_run_folder_is_refused_before_overwrite_could_delete_it(tiny_checkpoint, tmp_path):
+    path, _ = tiny_checkpoint
+    data = tmp_path / "data"
+    for s in range(2):
+        write_scene(data / f"scene_{s}", views=6, seed=s)
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    inside = run / "checkpoints" / "last.pt"
+    inside.write_bytes(path.read_bytes())
+    before = inside.read_bytes()
+    result = CliRunner().invoke(cli, ["train", str(data), "--out", str(run), "--init", str(inside), "--overwrite",
+                                      "--steps", "1", "--device", "cpu"])
+    assert result.exit_code == 1 and "--init checkpoint" in result.output
+    assert inside.read_bytes() == before

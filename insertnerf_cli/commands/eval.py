@@ -7,7 +7,7 @@ import click
 
 from ..pipeline import EvalConfig, evaluate_scene
 from .common import device_option, overwrite_option, resolve_device, user_errors
-from .render import model_options
+from .render import chosen_weights, model_options
 
 
 @click.command("eval")
@@ -22,7 +22,7 @@ from .render import model_options
 @overwrite_option
 @user_errors
 def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, max_views: int | None, views: int,
-                 resolution: int, checkpoint: Path | None, chunk: int, exact: bool, device: str,
+                 resolution: int, model: str, checkpoint: Path | None, chunk: int, exact: bool, device: str,
                  overwrite: bool) -> None:
     """Score novel-view quality on SCENE_DIR: render each held-out view (the test split, else every 8th view)
     from its nearest other views and compare it with the photo.
@@ -31,7 +31,7 @@ def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, 
     Example:
       insertnerf eval scene/ --json scores.json --out side_by_side/
     """
-    config = EvalConfig(views=views, resolution=resolution or None, checkpoint=checkpoint,
+    config = EvalConfig(views=views, resolution=resolution or None, checkpoint=chosen_weights(model, checkpoint),
                         device=str(resolve_device(device)), chunk=chunk, exact=exact, out_dir=out_dir,
                         json_path=json_path, max_views=max_views, overwrite=overwrite)
     report = evaluate_scene(scene_dir, config)

@@ -6,21 +6,26 @@ from typing import Any, Callable
 
 import click
 
+from ..checkpoint import BUNDLED_MODELS, bundled_checkpoint
+from ..errors import UserError
 from ..pipeline import DEFAULT_CHUNK, DEFAULT_FPS, DEFAULT_RESOLUTION, DEFAULT_VIEWS, RenderConfig, render_scene
 from ..paths import PATH_KINDS
 from .common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
 
 
 def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
-    """--views, --resolution, --checkpoint, --chunk, --exact: shared by render and eval."""
+    """--views, --resolution, --model, --checkpoint, --chunk, --exact: shared by render and eval."""
     options = [
         click.option("--views", type=click.IntRange(min=1), default=DEFAULT_VIEWS, show_default=True,
                      help="Reference views per rendered image (the nearest ones)."),
         click.option("--resolution", type=click.IntRange(min=0), default=DEFAULT_RESOLUTION, show_default=True,
                      help="Long side of the rendered images in pixels; 0 = the photos' own size. Never upsamples: "
                      "a larger value gives the photos' size."),
+        click.option("--model", type=click.Choice(sorted(BUNDLED_MODELS)), default="default", show_default=True,
+                     help="Which bundled pretrained generator renders: fast has 32+16 samples per ray instead of "
+                     "64+64 (about 2x faster, softer; docs/model-card.md)."),
         click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-                     help="Generator weights from `insertnerf train` (default: the bundled pretrained ones)."),
+                     help="Generator weights from `insertnerf train` or `finetune` instead of a bundled --model."),
         click.option("--chunk", type=click.IntRange(min=1), default=DEFAULT_CHUNK, show_default=True,
                      help="Rays per network call; lower it if memory runs out."),
         click.option("--exact", is_flag=True,
@@ -30,6 +35,15 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
     for option in reversed(options):
         func = option(func)
     return func
+
+
+def chosen_weights(model: str, checkpoint: Path | None) -> Path | None:
+    """The --checkpoint, else None for the default bundled generator, else the bundled --model's file."""
+    if checkpoint is not None:
+        if model != "default":
+            raise UserError(f"--model {model} and --checkpoint {checkpoint} both name weights: pass one of them.")
+        return checkpoint
+    return None if model == "default" else bundled_checkpoint(model)
 
 
 @click.command("render")
@@ -52,8 +66,8 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
 @overwrite_option
 @user_errors
 def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float, views: int,
-           resolution: int, checkpoint: Path | None, chunk: int, exact: bool, device: str, overwrite: bool,
-           finetune_minutes: float | None) -> None:
+           resolution: int, model: str, checkpoint: Path | None, chunk: int, exact: bool, device: str,
+           overwrite: bool, finetune_minutes: float | None) -> None:
     """Render novel views of SCENE_DIR into --out: frames, depth maps, videos and cameras.
 
     SCENE_DIR is a scene in any supported format, or a plain folder of photos (their poses are then estimated
@@ -64,6 +78,6 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
       insertnerf render photos/ --out views/ --frames 60 --resolution 320
     """
     config = RenderConfig(path=path_kind, frames=frames, fps=fps, resolution=resolution or None, views=views,
-                          checkpoint=checkpoint, device=str(resolve_device(device)), chunk=chunk, exact=exact,
+                          checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)), chunk=chunk, exact=exact,
                           overwrite=overwrite, finetune_minutes=finetune_minutes)
     click.echo(render_scene(scene_dir, out_dir, config).line())

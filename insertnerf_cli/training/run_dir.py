@@ -19,7 +19,7 @@ from typing import Any
 from ..atomic import atomic_path, write_error, write_json
 from ..config import config_to_json
 from ..errors import UserError
-from ..outdir import OutputRecord, check_output
+from ..outdir import OutputRecord, check_not_inside_inputs, check_output
 from .config import TrainConfig
 
 _OWNER = "train"  # the name of its list in an output record (outdir.py)
@@ -65,14 +65,17 @@ class RunFiles:
         return OutputRecord(self.root, _OWNER).exists or any(p.exists() for p in self.owned())
 
 
-def check_run_dir(files: RunFiles, dataset_dir: Path, resume: bool, overwrite: bool) -> None:
+def check_run_dir(files: RunFiles, dataset_dir: Path, resume: bool, overwrite: bool,
+                  init: str | None = None) -> None:
     """Refuse to mix runs: a RUN_DIR with a checkpoint needs --resume or --overwrite, and --resume needs one.
 
     A run folder killed before its first checkpoint holds nothing to resume: a plain run starts it afresh.
-    The folder must not hold or lie inside the dataset, and must be writable.
+    The folder must not hold or lie inside the dataset or the --init checkpoint, and must be writable.
     """
     if resume and overwrite:
         raise UserError("--resume and --overwrite contradict each other: pick one.")
+    if init is not None and not resume:
+        check_not_inside_inputs(files.root, [Path(init)], kind="--init checkpoint")
     check_output(files.root, [dataset_dir], kind="input dataset")
     if resume:
         if not files.last.is_file():

@@ -75,7 +75,7 @@ class Objective(nn.Module):
 def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: DistContext,
                  resume: bool, overwrite: bool, say: Say) -> Session:
     """Check the run folder, read the scenes, build (or restore) model, optimizer and generators."""
-    check_run_dir(files, dataset_dir, resume, overwrite)  # every rank checks before any rank writes
+    check_run_dir(files, dataset_dir, resume, overwrite, config.init)  # every rank checks before any rank writes
     distributed.barrier(ctx)
     checkpoint = read_checkpoint(files.last) if resume else None
     if checkpoint is not None:
