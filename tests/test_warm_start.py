@@ -29,6 +29,14 @@ def tiny_checkpoint(tmp_path):
     return path, model
 
 
+@pytest.fixture()
+def data(tmp_path):
+    root = tmp_path / "data"
+    for s in range(2):
+        write_scene(root / f"scene_{s}", views=6, seed=s)
+    return root
+
+
 def test_same_config_copies_every_tensor(tiny_checkpoint):
     path, source = tiny_checkpoint
     target = InsertNeRF(TINY)
@@ -60,11 +68,8 @@ def test_another_architecture_is_one_clear_error(tiny_checkpoint):
         warm_start(InsertNeRF(dataclasses.replace(TINY, nerf_layers=4)), read_checkpoint(path))
 
 
-def test_train_init_starts_from_the_checkpoint_and_records_it(tiny_checkpoint, tmp_path):
+def test_train_init_starts_from_the_checkpoint_and_records_it(tiny_checkpoint, data, tmp_path):
     path, source = tiny_checkpoint
-    data = tmp_path / "data"
-    for s in range(2):
-        write_scene(data / f"scene_{s}", views=6, seed=s)
     config = tmp_path / "fewer.json"
     config.write_text(json.dumps(config_to_json(FEWER)))
     out = tmp_path / "run"
@@ -80,11 +85,8 @@ def test_train_init_starts_from_the_checkpoint_and_records_it(tiny_checkpoint, t
     torch.testing.assert_close(saved.model_state[name], source.state_dict()[name], atol=1e-6, rtol=0)
 
 
-def test_init_inside_the_run_folder_is_refused_before_overwrite_could_delete_it(tiny_checkpoint, tmp_path):
+def test_init_inside_the_run_folder_is_refused_before_overwrite_could_delete_it(tiny_checkpoint, data, tmp_path):
     path, _ = tiny_checkpoint
-    data = tmp_path / "data"
-    for s in range(2):
-        write_scene(data / f"scene_{s}", views=6, seed=s)
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
     inside = run / "checkpoints" / "last.pt"
