@@ -34,8 +34,10 @@ from .paths import CameraPath, default_path_kind, make_path
 
 DEFAULT_FRAMES = 30
 DEFAULT_FPS = 15.0
-# render.py measured 128 rays per call fastest on CPU (per-view tensors stay in cache; 512 was 30% slower).
-DEFAULT_CHUNK = 128
+# Rays per network call by device. CPU: small chunks stay in cache (render.render_image, bench/model_speed.py).
+# CUDA: a GPU needs far more work per call than 128 rays; 4096 rays of 64+64 samples and 10 views hold about
+# 1 GB of per-view tensors. Not measured on a GPU yet (none was lent to issue 11).
+DEFAULT_CHUNKS = {"cpu": 128, "cuda": 4096}
 STATE_VERSION = 1
 # Below half opacity a pixel shows mostly background, so its depth says little: it is written as invalid (0).
 MIN_DEPTH_OPACITY = 0.5
@@ -55,7 +57,7 @@ class RenderConfig:
         views: reference views per frame.
         checkpoint: generator weights (None = the bundled pretrained ones).
         device: torch device name (cpu or cuda), resolved once by the command.
-        chunk: rays per network call (bounds memory).
+        chunk: rays per network call (bounds memory); None = DEFAULT_CHUNKS of the device.
         exact: every ray gets its own coarse pass and every pixel a fine pass (render.EXACT), instead of the
             default shortcuts (render.Shortcuts: within 0.3 dB, docs/benchmarks.md).
         overwrite: replace the outputs of a different earlier run in the output folder.
@@ -69,7 +71,7 @@ class RenderConfig:
     views: int = DEFAULT_VIEWS
     checkpoint: Path | None = None
     device: str = "cpu"
-    chunk: int = DEFAULT_CHUNK
+    chunk: int | None = None
     exact: bool = False
     overwrite: bool = False
     finetune_minutes: float | None = None
@@ -127,7 +129,7 @@ class EvalConfig:
     resolution: int | None = DEFAULT_RESOLUTION
     checkpoint: Path | None = None
     device: str = "cpu"
-    chunk: int = DEFAULT_CHUNK
+    chunk: int | None = None
     exact: bool = False
     out_dir: Path | None = None
     json_path: Path | None = None
@@ -237,7 +239,8 @@ class _Renderer:
 
     def __init__(self, model: torch.nn.Module, scene, config: RenderConfig | EvalConfig, size: tuple[int, int]) -> None:
         self.model = model
-        self.scene, self.size, self.k, self.chunk = scene, size, config.views, config.chunk
+        self.scene, self.size, self.k = scene, size, config.views
+        self.chunk = config.chunk or DEFAULT_CHUNKS.get(torch.device(config.device).type, DEFAULT_CHUNKS["cpu"])
         self.exact = config.exact
         self.method = "dist" if scene.layout == "forward" else "vector"
         self.cache: OrderedDict[tuple[int, ...], object] = OrderedDict()

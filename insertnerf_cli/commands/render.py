@@ -8,7 +8,7 @@ import click
 
 from ..checkpoint import BUNDLED_MODELS, bundled_checkpoint
 from ..errors import UserError
-from ..pipeline import DEFAULT_CHUNK, DEFAULT_FPS, DEFAULT_RESOLUTION, DEFAULT_VIEWS, RenderConfig, render_scene
+from ..pipeline import DEFAULT_FPS, DEFAULT_RESOLUTION, DEFAULT_VIEWS, RenderConfig, render_scene
 from ..paths import PATH_KINDS
 from .common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
 
@@ -26,8 +26,9 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
                      "64+64 (about 2x faster, softer; docs/model-card.md)."),
         click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                      help="Generator weights from `insertnerf train` or `finetune` instead of a bundled --model."),
-        click.option("--chunk", type=click.IntRange(min=1), default=DEFAULT_CHUNK, show_default=True,
-                     help="Rays per network call; lower it if memory runs out."),
+        click.option("--chunk", type=click.IntRange(min=1),
+                     help="Rays per network call; lower it if memory runs out.  [default: 128 on CPU, 4096 on "
+                     "CUDA]"),
         click.option("--exact", is_flag=True,
                      help="Give every pixel its own coarse pass and a fine pass (slower). By default the coarse "
                      "pass runs on every 2nd pixel and background pixels skip the fine pass (within 0.3 dB)."),
@@ -78,6 +79,6 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
       insertnerf render photos/ --out views/ --frames 60 --resolution 320
     """
     config = RenderConfig(path=path_kind, frames=frames, fps=fps, resolution=resolution or None, views=views,
-                          checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)), chunk=chunk, exact=exact,
-                          overwrite=overwrite, finetune_minutes=finetune_minutes)
+                          checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)),
+                          chunk=chunk, exact=exact, overwrite=overwrite, finetune_minutes=finetune_minutes)
     click.echo(render_scene(scene_dir, out_dir, config).line())
