@@ -47,8 +47,8 @@ def run(args: list[str]) -> tuple[float, float, str]:
 
 
 def model_args(args: argparse.Namespace) -> list[str]:
-    extra = ["--device", "cpu", "--views", str(args.views)]
-    return extra + (["--checkpoint", str(args.checkpoint)] if args.checkpoint else [])
+    extra = ["--device", "cpu", "--views", str(args.views), *(["--exact"] if args.exact else [])]
+    return extra + (["--checkpoint", str(args.checkpoint)] if args.checkpoint else ["--model", args.model])
 
 
 def quality(args: argparse.Namespace, work: Path) -> None:
@@ -159,7 +159,9 @@ def path_truth(args: argparse.Namespace, work: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("figure", choices=["quality", "speed", "photos", "path"])
-    parser.add_argument("--checkpoint", type=Path, help="default: the bundled weights")
+    parser.add_argument("--checkpoint", type=Path, help="default: the bundled weights of --model")
+    parser.add_argument("--model", default="default", help="which bundled generator (default or fast)")
+    parser.add_argument("--exact", action="store_true", help="render without the shortcuts (render --exact)")
     parser.add_argument("--views", type=int, default=10, help="reference views")
     parser.add_argument("--resolution", type=int, default=200)
     parser.add_argument("--scenes", type=int, default=10)
