@@ -41,8 +41,9 @@ DEFAULT_CHUNKS = {"cpu": 128, "cuda": 4096}
 STATE_VERSION = 1
 # Below half opacity a pixel shows mostly background, so its depth says little: it is written as invalid (0).
 MIN_DEPTH_OPACITY = 0.5
-# Consecutive frames of a path mostly share their reference views; a few encodings cover the overlaps.
-ENCODING_CACHE_SIZE = 4
+# Consecutive frames of a path mostly share their reference views: encodings are kept per view, for this many
+# times --views views, so a frame encodes only the views its predecessors did not use.
+ENCODED_VIEWS_KEPT = 2
 
 
 @dataclass(frozen=True)
@@ -243,7 +244,7 @@ class _Renderer:
         self.chunk = config.chunk or DEFAULT_CHUNKS.get(torch.device(config.device).type, DEFAULT_CHUNKS["cpu"])
         self.exact = config.exact
         self.method = "dist" if scene.layout == "forward" else "vector"
-        self.cache: OrderedDict[tuple[int, ...], object] = OrderedDict()
+        self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
 
     def references(self, target_c2w: torch.Tensor, exclude: list[int]) -> list[int]:
         from .views import nearest_views
@@ -254,19 +255,23 @@ class _Renderer:
         return refs
 
     def _encoded(self, refs: list[int]):
-        from .model import SourceViews
+        from .model import EncodedViews, SourceViews
 
-        key = tuple(sorted(refs))
-        if key not in self.cache:
-            images, cams = self.scene.load_views(list(key), *self.size)
+        key = sorted(refs)
+        missing = [i for i in key if i not in self.cache]
+        if missing:
+            images, cams = self.scene.load_views(missing, *self.size)
             param = next(self.model.parameters())
             views = SourceViews(images, cams).to(device=param.device, dtype=param.dtype)
             with torch.inference_mode():
-                self.cache[key] = self.model.encode(views)
-            while len(self.cache) > ENCODING_CACHE_SIZE:
-                self.cache.popitem(last=False)
-        self.cache.move_to_end(key)
-        return self.cache[key]
+                encoded = self.model.encode(views)
+            for row, index in enumerate(missing):
+                self.cache[index] = encoded.select([row])
+        for index in key:
+            self.cache.move_to_end(index)
+        while len(self.cache) > ENCODED_VIEWS_KEPT * max(self.k, len(key)):
+            self.cache.popitem(last=False)
+        return EncodedViews.join([self.cache[i] for i in key])
 
     def render(self, camera: Cameras, near: float, far: float, exclude: list[int]):
         """(ImageOutput of ``camera`` (1), the reference indices used); never uses an index in ``exclude``."""

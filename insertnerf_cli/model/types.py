@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import torch
 from torch import Tensor
@@ -66,6 +67,23 @@ class EncodedViews:
     def source_images(self) -> Tensor:
         """The unpadded reference images [V, 3, H, W]."""
         return self.images[..., : self.height, : self.width]
+
+    def select(self, index: Sequence[int]) -> "EncodedViews":
+        """The views at ``index`` (the U-Net treats every view on its own, so a view's encoding does not depend
+        on the others it was encoded with); the training-only reconstruction is dropped."""
+        rows = list(index)
+        return EncodedViews(features=tuple(f[rows] for f in self.features), images=self.images[rows],
+                            projection=self.projection[rows], centers=self.centers[rows], height=self.height,
+                            width=self.width)
+
+    @staticmethod
+    def join(parts: Sequence["EncodedViews"]) -> "EncodedViews":
+        """The views of ``parts`` (same image size) in order, as one EncodedViews."""
+        first = parts[0]
+        return EncodedViews(features=tuple(torch.cat(scale) for scale in zip(*(p.features for p in parts))),
+                            images=torch.cat([p.images for p in parts]),
+                            projection=torch.cat([p.projection for p in parts]),
+                            centers=torch.cat([p.centers for p in parts]), height=first.height, width=first.width)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,53 @@
+"""Reference-view encodings are kept per view: a frame encodes only the views its predecessors did not use."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from insertnerf_cli.model import EncodedViews, InsertNeRF, SourceViews
+from insertnerf_cli.pipeline import RenderConfig, _Renderer
+from insertnerf_cli.scenes import load_scene, normalize_scene
+from model_fixtures import TINY, sphere_views  # noqa: F401
+from scene_fixtures import known_scene, write_blender
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def _close(a: EncodedViews, b: EncodedViews) -> None:
+    for x, y in zip(a.features, b.features):
+        torch.testing.assert_close(x, y, atol=1e-5, rtol=1e-4)
+    for name in ("images", "projection", "centers"):
+        torch.testing.assert_close(getattr(a, name), getattr(b, name))
+    assert (a.height, a.width) == (b.height, b.width)
+
+
+def test_joined_per_view_encodings_equal_encoding_the_set():
+    torch.manual_seed(0)
+    model = InsertNeRF(TINY).eval()
+    views = sphere_views(4, 16)
+    with torch.no_grad():
+        whole = model.encode(views)
+        subset = model.encode(SourceViews(views.images[[1, 3, 0]], views.cameras[[1, 3, 0]]))
+    _close(EncodedViews.join([whole.select([1, 3]), whole.select([0])]), subset)
+
+
+def test_renderer_encodes_each_view_once_while_frames_share_views(tmp_path):
+    torch.manual_seed(0)
+    scene, _ = normalize_scene(load_scene(write_blender(tmp_path / "scene", known_scene(n=6))))
+    model = InsertNeRF(TINY).eval()
+    encoded_counts = []
+    encode = model.encode
+
+    def counting_encode(views):
+        encoded_counts.append(len(views))
+        return encode(views)
+
+    model.encode = counting_encode
+    renderer = _Renderer(model, scene, RenderConfig(views=3), (16, 16))
+    first = renderer._encoded([2, 0, 1])
+    second = renderer._encoded([1, 2, 3])
+    assert encoded_counts == [3, 1]  # only view 3 is new for the second frame
+    assert len(first) == len(second) == 3
+    images, cams = scene.load_views([1, 2, 3], 16, 16)
+    with torch.no_grad():
+        _close(second, encode(SourceViews(images, cams)))
