@@ -95,7 +95,7 @@ def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, 
                 rgb, depth, opacity = (torch.cat([getattr(o, k) for o in outs]) for k in ("rgb", "depth", "opacity"))
             else:
                 rgb, depth, opacity = _render_with_shortcuts(model, encoded, rays, (height, width), shortcuts,
-                                                             chunked, model.background)
+                                                             chunked)
     return ImageOutput(rgb=rgb.reshape(height, width, 3).clamp(0.0, 1.0), depth=depth.reshape(height, width),
                        opacity=opacity.reshape(height, width))
 
@@ -106,7 +106,7 @@ def _no_grad(work: Callable[[Tensor], T], index: Tensor) -> T:
 
 
 def _render_with_shortcuts(model: "InsertNeRF", encoded: "EncodedViews", rays: Rays, size: tuple[int, int],
-                           shortcuts: Shortcuts, chunked: Callable, background: Tensor) -> tuple[Tensor, ...]:
+                           shortcuts: Shortcuts, chunked: Callable) -> tuple[Tensor, ...]:
     """(rgb [R, 3], depth [R], opacity [R]) of the frame's R = H * W rays: the coarse pass on a grid of every
     coarse_stride-th pixel, fine samples placed by the blend of the nearest grid rays, empty pixels skipped."""
     grid = CoarseGrid(*size, shortcuts.coarse_stride, rays.origins.device)
@@ -124,7 +124,7 @@ def _render_with_shortcuts(model: "InsertNeRF", encoded: "EncodedViews", rays: R
                                                                  edges.expand(len(rows), -1)), weights[rows])
 
     outs = chunked(fine, len(live))
-    rgb = background.to(weights).expand(len(rays), 3).clone()
+    rgb = model.background.to(weights).expand(len(rays), 3).clone()
     depth = t.mean().expand(len(rays)).clone()  # what compositing gives a ray that sees nothing
     opacity = weights.new_zeros(len(rays))
     if outs:
@@ -144,7 +144,6 @@ class CoarseGrid:
 
     def __init__(self, height: int, width: int, stride: int, device: torch.device) -> None:
         self.rows, self.cols = _grid_line(height, stride, device), _grid_line(width, stride, device)
-        self.width = width
         self.index = (self.rows[:, None] * width + self.cols[None, :]).reshape(-1)  # [G]
         (self.r0, self.r1, self.fr), (self.c0, self.c1, self.fc) = (_between(self.rows, height),
                                                                     _between(self.cols, width))
