@@ -34,15 +34,22 @@ class Variant:
     args: tuple[str, ...]
 
 
-def run(tree: Path, args: list[str]) -> tuple[str, float]:
-    """``insertnerf ARGS`` with ``tree`` on PYTHONPATH: (its stdout, its peak RSS in MiB)."""
+def run(tree: Path, args: list[str], cwd: Path) -> tuple[str, float]:
+    """``insertnerf ARGS`` with ``tree`` on PYTHONPATH: (its stdout, its peak RSS in MiB).
+
+    ``cwd`` must hold no insertnerf_cli: `python -c` puts the working folder before PYTHONPATH on sys.path. The
+    child names the package it imported, and a package from outside ``tree`` stops the benchmark."""
     entry = ("import atexit, resource, sys; atexit.register(lambda: sys.stderr.write("
              "f'\\nPEAK_RSS_KIB {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n')); "
+             "import insertnerf_cli; sys.stderr.write(f'IMPORTED {insertnerf_cli.__file__}\\n'); "
              "from insertnerf_cli.cli import main; main()")
-    proc = subprocess.run([sys.executable, "-c", entry, *args], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-c", entry, *args], capture_output=True, text=True, cwd=cwd,
                           env={**os.environ, "PYTHONPATH": str(tree)})
     if proc.returncode != 0:
         sys.exit(f"insertnerf {' '.join(args)} ({tree}) failed:\n{proc.stderr[-2000:]}")
+    imported = Path(re.search(r"IMPORTED (.+)", proc.stderr).group(1)).resolve()
+    if tree.resolve() not in imported.parents:
+        sys.exit(f"the child imported {imported}, not the package in {tree}")
     return proc.stdout, int(re.findall(r"PEAK_RSS_KIB (\d+)", proc.stderr)[-1]) / KIB
 
 
@@ -66,7 +73,8 @@ def main() -> None:
     try:
         scene = work / "data"
         run(HERE, ["synth", str(scene), "--scenes", "1", "--views", str(args.views + 2), "--resolution",
-                   str(args.resolution), "--square", "--layout", "object", "--seed", str(args.seed), "--workers", "1"])
+                   str(args.resolution), "--square", "--layout", "object", "--seed", str(args.seed), "--workers", "1"],
+            work)
         times: dict[str, list[float]] = {v.label: [] for v in variants}
         peaks: dict[str, list[float]] = {v.label: [] for v in variants}
         for r in range(args.rounds):
@@ -75,7 +83,7 @@ def main() -> None:
                 out = work / f"out_{r}_{len(times[v.label])}_{variants.index(v)}"
                 stdout, peak = run(v.tree, ["render", str(scene / "scene_00000"), "--out", str(out), "--frames",
                                             str(args.frames), "--resolution", str(args.resolution), "--views",
-                                            str(args.views), "--device", args.device, *v.args])
+                                            str(args.views), "--device", args.device, *v.args], work)
                 per_frame = float(re.search(r"([\d.]+) s/frame", stdout).group(1))
                 times[v.label].append(per_frame)
                 peaks[v.label].append(peak)
