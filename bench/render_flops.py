@@ -2,6 +2,7 @@
 
     python3 bench/render_flops.py                       # the bundled generator, 200x200, 10 views
     python3 bench/render_flops.py --size 800 --device cuda
+    python3 bench/render_flops.py --model fast
 
 Counts the floating-point operations of ``InsertNeRF.render`` on one chunk of rays with torch's FlopCounterMode
 (matrix products and convolutions; element-wise ops are not counted, so the figure is a lower bound), scales it
@@ -28,11 +29,13 @@ from model_speed import FAR, NEAR, orbit  # noqa: E402
 from insertnerf_cli.checkpoint import bundled_checkpoint, load_model  # noqa: E402
 from insertnerf_cli.model import SourceViews  # noqa: E402
 from insertnerf_cli.rays import rays_for_image  # noqa: E402
+from insertnerf_cli.render import CoarseGrid, Shortcuts  # noqa: E402
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--checkpoint", type=Path, help="generator weights (default: the bundled ones)")
+    parser.add_argument("--checkpoint", type=Path, help="generator weights (default: the bundled --model)")
+    parser.add_argument("--model", default="default", help="which bundled generator: default or fast")
     parser.add_argument("--size", type=int, default=200, help="frame side in pixels")
     parser.add_argument("--views", type=int, default=10, help="reference views")
     parser.add_argument("--chunk", type=int, default=128, help="rays per network call")
@@ -43,7 +46,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     device = torch.device(args.device)
-    model, config = load_model(args.checkpoint or bundled_checkpoint(), device)
+    model, config = load_model(args.checkpoint or bundled_checkpoint(args.model), device)
     model.eval()
     refs = orbit(args.views, args.size)
     with torch.inference_mode():
@@ -51,9 +54,12 @@ def main() -> None:
         camera = orbit(1, args.size, phase=0.3).to(device)
         rays = rays_for_image(camera, torch.tensor([NEAR], device=device), torch.tensor([FAR], device=device))
         chunk = rays[: args.chunk]
-        with FlopCounterMode(display=False) as counter:
-            model.render(encoded, chunk)
-        flops = counter.get_total_flops()
+        with FlopCounterMode(display=False) as coarse_counter:
+            samples, weights = model.coarse_weights(encoded, chunk)
+        with FlopCounterMode(display=False) as fine_counter:
+            model.render_fine(encoded, chunk, samples, weights)
+        coarse_flops, fine_flops = coarse_counter.get_total_flops(), fine_counter.get_total_flops()
+        flops = coarse_flops + fine_flops
         times = []
         for i in range(args.repeats + 2):
             if device.type == "cuda":
@@ -70,6 +76,11 @@ def main() -> None:
     print(f"model: {config.samples_coarse}+{config.samples_fine} samples, {args.views} views; chunk {args.chunk} rays")
     print(f"FLOPs: {flops / 1e9:.2f} GFLOP per chunk, {frame_flops / 1e9:.0f} GFLOP per {args.size}x{args.size} "
           f"frame ({flops / args.chunk / 1e6:.1f} MFLOP per ray)")
+    grid = len(CoarseGrid(args.size, args.size, Shortcuts().coarse_stride, device).index) / args.size ** 2
+    per_frame = args.size * args.size / args.chunk / 1e9
+    print(f"of which coarse {coarse_flops * per_frame:.0f} and fine {fine_flops * per_frame:.0f} GFLOP; with render's "
+          f"default shortcuts (coarse pass on {100 * grid:.0f} % of the pixels) "
+          f"{(grid * coarse_flops + fine_flops) * per_frame:.0f} GFLOP per frame")
     print(f"achieved: {seconds * 1e3:.1f} ms per chunk = {rate:.1f} GFLOP/s on one thread "
           f"({frame_flops / 1e9 / rate:.1f} thread-seconds per frame)")
     peak = args.peak_gflops or matmul_gflops(device)

@@ -23,3 +23,14 @@ def test_bundled_model_renders_a_finite_image(one_thread):
     assert out.rgb.shape == (size, size, 3)
     assert torch.isfinite(out.rgb).all() and torch.isfinite(out.depth).all()
     assert ((out.depth >= NEAR - 1e-4) & (out.depth <= FAR + 1e-4)).all()
+
+
+def test_bundled_fast_model_loads_with_fewer_samples_and_renders(one_thread):
+    path = bundled_checkpoint("fast")
+    assert path.stat().st_size <= MAX_BYTES
+    model, config = load_model(path, torch.device("cpu"))
+    _, default = load_model(bundled_checkpoint(), torch.device("cpu"))
+    assert config.samples_coarse + config.samples_fine < default.samples_coarse + default.samples_fine
+    size = 24
+    out = render_image(model, model.encode(sphere_views(3, size)), orbit_cameras(1, size, phase=0.4), NEAR, FAR)
+    assert torch.isfinite(out.rgb).all() and ((out.depth >= NEAR - 1e-4) & (out.depth <= FAR + 1e-4)).all()

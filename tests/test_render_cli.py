@@ -239,3 +239,24 @@ def test_bad_input_is_one_line_error(scene_and_checkpoint, tmp_path):
     result = _render(empty, ckpt, tmp_path / "out", "--frames", 2)
     assert result.exit_code == 1 and "Traceback" not in result.output
     assert result.output.startswith("Error:") and len(result.output.strip().splitlines()) == 1
+
+
+def test_model_fast_renders_with_the_bundled_fast_weights_and_excludes_checkpoint(scene_and_checkpoint, tmp_path):
+    scene, ckpt = scene_and_checkpoint
+    out = tmp_path / "fast"
+    result = run("render", scene, "--out", out, "--model", "fast", "--device", "cpu", "--resolution", 16,
+                 "--views", 2, "--frames", 1)
+    assert result.exit_code == 0, result.output
+    assert (out / "frames" / "00000.png").is_file()
+    both = _render(scene, ckpt, tmp_path / "both", "--model", "fast")
+    assert both.exit_code == 1 and "pass one of them" in both.output
+    assert not (tmp_path / "both").exists()
+
+
+def test_exact_and_default_renders_are_separate_runs(scene_and_checkpoint, tmp_path):
+    # --exact changes the frames, so a re-run with it must re-render instead of resuming the other run's frames.
+    scene, ckpt = scene_and_checkpoint
+    out = tmp_path / "views"
+    assert _render(scene, ckpt, out, "--frames", 1).exit_code == 0
+    again = _render(scene, ckpt, out, "--frames", 1, "--exact")
+    assert again.exit_code == 1 and "--overwrite" in again.output
