@@ -23,7 +23,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
                      "a larger value gives the photos' size."),
         click.option("--model", type=click.Choice(sorted(BUNDLED_MODELS)), default="default", show_default=True,
                      help="Which bundled pretrained generator renders: fast has 32+16 samples per ray instead of "
-                     "64+64 (about 2x faster, softer; docs/model-card.md)."),
+                     "64+64 (2.5x faster, about the same quality; docs/model-card.md)."),
         click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                      help="Generator weights from `insertnerf train` or `finetune` instead of a bundled --model."),
         click.option("--chunk", type=click.IntRange(min=1),
