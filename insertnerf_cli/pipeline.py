@@ -242,7 +242,9 @@ class _Renderer:
         self.model = model
         self.scene, self.size, self.k = scene, size, config.views
         self.chunk = config.chunk or DEFAULT_CHUNKS.get(torch.device(config.device).type, DEFAULT_CHUNKS["cpu"])
-        self.exact = config.exact
+        from .render import EXACT, Shortcuts
+
+        self.shortcuts = EXACT if config.exact else Shortcuts()
         self.method = "dist" if scene.layout == "forward" else "vector"
         self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
 
@@ -275,11 +277,10 @@ class _Renderer:
 
     def render(self, camera: Cameras, near: float, far: float, exclude: list[int]):
         """(ImageOutput of ``camera`` (1), the reference indices used); never uses an index in ``exclude``."""
-        from .render import EXACT, Shortcuts, render_image
+        from .render import render_image
 
         refs = self.references(camera.c2w[0], exclude)
-        shortcuts = EXACT if self.exact else Shortcuts()
-        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, shortcuts), refs
+        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts), refs
 
 
 # ---------------------------------------------------------------------------------------------------- render
