@@ -13,18 +13,17 @@ each variant and its speed-up over the code before.
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parents[1]
-KIB = 1024
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from render_eval import HERE, run  # noqa: E402  (one child-process runner for the render benchmarks)
 
 
 @dataclass(frozen=True)
@@ -32,25 +31,6 @@ class Variant:
     label: str
     tree: Path
     args: tuple[str, ...]
-
-
-def run(tree: Path, args: list[str], cwd: Path) -> tuple[str, float]:
-    """``insertnerf ARGS`` with ``tree`` on PYTHONPATH: (its stdout, its peak RSS in MiB).
-
-    ``cwd`` must hold no insertnerf_cli: `python -c` puts the working folder before PYTHONPATH on sys.path. The
-    child names the package it imported, and a package from outside ``tree`` stops the benchmark."""
-    entry = ("import atexit, resource, sys; atexit.register(lambda: sys.stderr.write("
-             "f'\\nPEAK_RSS_KIB {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n')); "
-             "import insertnerf_cli; sys.stderr.write(f'IMPORTED {insertnerf_cli.__file__}\\n'); "
-             "from insertnerf_cli.cli import main; main()")
-    proc = subprocess.run([sys.executable, "-c", entry, *args], capture_output=True, text=True, cwd=cwd,
-                          env={**os.environ, "PYTHONPATH": str(tree)})
-    if proc.returncode != 0:
-        sys.exit(f"insertnerf {' '.join(args)} ({tree}) failed:\n{proc.stderr[-2000:]}")
-    imported = Path(re.search(r"IMPORTED (.+)", proc.stderr).group(1)).resolve()
-    if tree.resolve() not in imported.parents:
-        sys.exit(f"the child imported {imported}, not the package in {tree}")
-    return proc.stdout, int(re.findall(r"PEAK_RSS_KIB (\d+)", proc.stderr)[-1]) / KIB
 
 
 def main() -> None:
@@ -72,18 +52,18 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="render_ab_"))
     try:
         scene = work / "data"
-        run(HERE, ["synth", str(scene), "--scenes", "1", "--views", str(args.views + 2), "--resolution",
+        run(["synth", str(scene), "--scenes", "1", "--views", str(args.views + 2), "--resolution",
                    str(args.resolution), "--square", "--layout", "object", "--seed", str(args.seed), "--workers", "1"],
-            work)
+            cwd=work)
         times: dict[str, list[float]] = {v.label: [] for v in variants}
         peaks: dict[str, list[float]] = {v.label: [] for v in variants}
         for r in range(args.rounds):
             order = variants[r % len(variants):] + variants[:r % len(variants)]
             for v in order:
                 out = work / f"out_{r}_{len(times[v.label])}_{variants.index(v)}"
-                stdout, peak = run(v.tree, ["render", str(scene / "scene_00000"), "--out", str(out), "--frames",
+                _, peak, stdout = run(["render", str(scene / "scene_00000"), "--out", str(out), "--frames",
                                             str(args.frames), "--resolution", str(args.resolution), "--views",
-                                            str(args.views), "--device", args.device, *v.args], work)
+                                            str(args.views), "--device", args.device, *v.args], v.tree, work)
                 per_frame = float(re.search(r"([\d.]+) s/frame", stdout).group(1))
                 times[v.label].append(per_frame)
                 peaks[v.label].append(peak)

@@ -27,21 +27,30 @@ import imageio.v3 as iio
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+HERE = Path(__file__).resolve().parents[1]  # the checkout these benchmarks run
 KIB = 1024
 
 
-def run(args: list[str]) -> tuple[float, float, str]:
-    """Run ``insertnerf ARGS`` in a child; (wall seconds, the child's peak RSS in MiB, its stdout)."""
+def run(args: list[str], tree: Path = HERE, cwd: Path | None = None) -> tuple[float, float, str]:
+    """Run ``insertnerf ARGS`` from ``tree`` in a child; (wall seconds, the child's peak RSS in MiB, its stdout).
+
+    `python -c` puts the working folder (``cwd``, default ours) before PYTHONPATH on sys.path, so a checkout
+    there would be imported instead of ``tree``: the child names the package it imported, and one from outside
+    ``tree`` stops the benchmark."""
     start = time.perf_counter()
     # The child reports its own peak resident set size on exit (pycolmap runs in-process, so it counts too).
     entry = ("import atexit, resource, sys; atexit.register(lambda: sys.stderr.write("
              "f'\\nPEAK_RSS_KIB {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n')); "
+             "import insertnerf_cli; sys.stderr.write(f'IMPORTED {insertnerf_cli.__file__}\\n'); "
              "from insertnerf_cli.cli import main; main()")
-    proc = subprocess.run([sys.executable, "-c", entry, *args], capture_output=True, text=True,
-                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    proc = subprocess.run([sys.executable, "-c", entry, *args], capture_output=True, text=True, cwd=cwd,
+                          env={**os.environ, "PYTHONPATH": str(tree)})
     wall = time.perf_counter() - start
     if proc.returncode != 0:
-        sys.exit(f"insertnerf {' '.join(args)} failed:\n{proc.stderr[-2000:]}")
+        sys.exit(f"insertnerf {' '.join(args)} ({tree}) failed:\n{proc.stderr[-2000:]}")
+    imported = Path(re.search(r"IMPORTED (.+)", proc.stderr).group(1)).resolve()
+    if tree.resolve() not in imported.parents:
+        sys.exit(f"the child imported {imported}, not the package in {tree}")
     peak = int(re.findall(r"PEAK_RSS_KIB (\d+)", proc.stderr)[-1]) / KIB
     return wall, peak, proc.stdout
 
