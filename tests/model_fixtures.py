@@ -8,7 +8,7 @@ import torch
 
 from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.config import ModelConfig
-from insertnerf_cli.model import SourceViews
+from insertnerf_cli.model import EncodedViews, InsertNeRF, SourceViews
 from insertnerf_cli.paths import look_at
 
 RADIUS = 3.0  # camera distance from the origin
@@ -48,3 +48,13 @@ def sphere_images(cameras: Cameras, background: float = 1.0) -> torch.Tensor:
 def sphere_views(n: int, size: int, phase: float = 0.0) -> SourceViews:
     cams = orbit_cameras(n, size, phase)
     return SourceViews(sphere_images(cams), cams)
+
+
+def tiny_model_and_views(size: int = 8, config: ModelConfig = TINY) -> tuple[InsertNeRF, EncodedViews, Cameras]:
+    """A TINY-style generator seeded with 0 (eval mode), its encoding of 3 sphere views of 16 px, and a target
+    camera of ``size`` px between them."""
+    torch.manual_seed(0)
+    model = InsertNeRF(config).eval()
+    with torch.no_grad():
+        encoded = model.encode(sphere_views(3, 16))
+    return model, encoded, orbit_cameras(1, size, phase=0.4)

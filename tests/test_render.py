@@ -4,12 +4,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from insertnerf_cli.model import InsertNeRF
 from insertnerf_cli.rays import rays_for_image
 from insertnerf_cli.compositing import composite, composite_weights
 from insertnerf_cli.render import EXACT, render_image
 from insertnerf_cli.sampling import stratified_samples
-from model_fixtures import FAR, NEAR, TINY, orbit_cameras, sphere_views  # noqa: F401
+from model_fixtures import FAR, NEAR, orbit_cameras, tiny_model_and_views
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -74,12 +73,8 @@ def test_ray_scale_is_a_density_scale():
 
 
 def test_render_image_is_chunk_invariant_and_matches_the_forward():
-    torch.manual_seed(0)
-    model = InsertNeRF(TINY).eval()
-    views = sphere_views(3, 16)
-    camera = orbit_cameras(1, 8, phase=0.4)
+    model, encoded, camera = tiny_model_and_views()
     with torch.no_grad():
-        encoded = model.encode(views)
         direct = model(encoded, rays_for_image(camera, torch.tensor([NEAR]), torch.tensor([FAR])), train=False).fine
     small = render_image(model, encoded, camera, NEAR, FAR, chunk=7, shortcuts=EXACT)
     big = render_image(model, encoded, camera, NEAR, FAR, chunk=10_000, shortcuts=EXACT)
@@ -93,11 +88,7 @@ def test_render_image_is_chunk_invariant_and_matches_the_forward():
 
 
 def test_render_image_on_worker_threads_matches_one_thread_and_restores_the_thread_count():
-    torch.manual_seed(0)
-    model = InsertNeRF(TINY).eval()
-    camera = orbit_cameras(1, 8, phase=0.4)
-    with torch.no_grad():
-        encoded = model.encode(sphere_views(3, 16))
+    model, encoded, camera = tiny_model_and_views()
     before = torch.get_num_threads()
     try:
         torch.set_num_threads(1)

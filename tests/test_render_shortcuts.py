@@ -8,9 +8,9 @@ import torch
 
 from insertnerf_cli.checkpoint import bundled_checkpoint, load_model
 from insertnerf_cli.compositing import psnr
-from insertnerf_cli.model import InsertNeRF
 from insertnerf_cli.render import EXACT, CoarseGrid, Shortcuts, render_image
-from model_fixtures import FAR, NEAR, TINY, orbit_cameras, sphere_images, sphere_views  # noqa: F401
+from model_fixtures import (FAR, NEAR, TINY, orbit_cameras, sphere_images, sphere_views,  # noqa: F401
+                            tiny_model_and_views)
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -39,11 +39,7 @@ def test_grid_nearest_max_is_the_largest_of_the_surrounding_grid_pixels():
 
 
 def test_stride_one_without_skipping_is_the_exact_path_in_any_chunking():
-    torch.manual_seed(0)
-    model = InsertNeRF(TINY).eval()
-    camera = orbit_cameras(1, 8, phase=0.4)
-    with torch.no_grad():
-        encoded = model.encode(sphere_views(3, 16))
+    model, encoded, camera = tiny_model_and_views()
     exact = render_image(model, encoded, camera, NEAR, FAR, chunk=10_000, shortcuts=EXACT)
     grid_path = render_image(model, encoded, camera, NEAR, FAR, chunk=7, shortcuts=Shortcuts(1, 1e-12))
     assert (grid_path.opacity > 0).all()  # nothing was skipped: the comparison covers the fine pass of every ray
@@ -67,11 +63,8 @@ def test_coarse_grid_costs_little_against_the_exact_path_with_the_bundled_weight
 
 
 def test_empty_pixels_are_skipped_and_show_the_background_as_the_exact_path_does():
-    torch.manual_seed(0)
-    model = InsertNeRF(dataclasses.replace(TINY, density_bias=-40.0)).eval()  # a field that is empty everywhere
-    camera = orbit_cameras(1, 8, phase=0.4)
-    with torch.no_grad():
-        encoded = model.encode(sphere_views(3, 16))
+    # a field that is empty everywhere
+    model, encoded, camera = tiny_model_and_views(config=dataclasses.replace(TINY, density_bias=-40.0))
     exact = render_image(model, encoded, camera, NEAR, FAR, shortcuts=EXACT)
     skipped = render_image(model, encoded, camera, NEAR, FAR, shortcuts=Shortcuts(2, 1e-3))
     assert (skipped.opacity == 0).all()  # no fine pass ran: zero opacity is what a skipped pixel gets
