@@ -82,7 +82,8 @@ def fine_tune(scene: Path, args: argparse.Namespace, marks: list[float], path_fo
                 steps_at[m] = progress.step
         hook(progress)
 
-    result = finetune(scene, path_for(args.minutes), config, torch.device("cpu"), overwrite=True, on_step=on_step)
+    result = finetune(scene, path_for(args.minutes), config, torch.device("cpu"), base=args.base, overwrite=True,
+                      on_step=on_step)
     return {"steps_at": {str(m): s for m, s in {**steps_at, args.minutes: result.steps}.items()},
             "steps_per_minute": result.steps_per_minute, "load_before": load_before, "load_after": os.getloadavg(),
             "config": {k: str(v) for k, v in vars(args).items()}}
@@ -99,7 +100,7 @@ def run_scene(scene: Path, args: argparse.Namespace, work: Path) -> list[dict]:
     wanted = [0.0, *marks, args.minutes] if args.score is None else [float(m) for m in args.score.split(",")]
     rows = []
     for minutes in [m for m in wanted if m or not args.skip_before]:
-        checkpoint = None if minutes == 0 else path_for(minutes)
+        checkpoint = args.base if minutes == 0 else path_for(minutes)
         rows.append({"scene": scene.name, "minutes": minutes, "steps": record["steps_at"].get(str(minutes), 0),
                      "metric": f"pixels {args.quick}" if args.quick else "eval", **score(scene, checkpoint, args),
                      **{k: record.get(k) for k in ("steps_per_minute", "load_before", "load_after")}})
@@ -112,6 +113,8 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("/tmp/finetune_eval"))
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--snapshots", default="2,5", help="comma-separated minutes ('' for none)")
+    parser.add_argument("--base", type=Path, help="weights to start from (default: the bundled default "
+                        "generator), e.g. insertnerf_cli/weights/insertnerf.pt (--model full)")
     parser.add_argument("--rays", type=int, default=FinetuneConfig.rays)
     parser.add_argument("--lr", type=float, default=FinetuneConfig.lr)
     parser.add_argument("--train-encoder", action="store_true")

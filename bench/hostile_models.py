@@ -13,7 +13,13 @@ BUNDLED = Path(__file__).resolve().parents[1] / "insertnerf_cli" / "weights" / "
 
 
 @case
-def case_render_model_fast_and_checkpoint(w: Workspace) -> Plan:
+def case_render_model_full_and_checkpoint(w: Workspace) -> Plan:
+    scene = w.scene()
+    return Plan([Step(render_args(w.fx, scene, w.dir / "out", "--model", "full"))], inputs=[scene])
+
+
+@case
+def case_render_default_model_named_and_checkpoint(w: Workspace) -> Plan:
     scene = w.scene()
     return Plan([Step(render_args(w.fx, scene, w.dir / "out", "--model", "fast"))], inputs=[scene])
 

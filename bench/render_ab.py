@@ -5,7 +5,8 @@
 
 Each round renders one fresh procedural object scene (made once by `insertnerf synth`) with every variant, in
 an order that rotates between rounds so that a drift of the machine's speed hits every variant alike: the code
-before, this tree with its defaults, this tree with --model fast (and with --exact if --exact-too is given).
+before, this tree with its defaults (the fast generator since it became the default), this tree with --model full
+(the generator that was the default before), and with --exact if --exact-too is given.
 Every render is the real command in a child process with the given tree on PYTHONPATH; the figure is the
 command's own "s/frame" (frames rendered, start-up and videos excluded) and its peak RSS. Prints the median of
 each variant and its speed-up over the code before.
@@ -46,7 +47,7 @@ def main() -> None:
     args = parser.parse_args()
 
     variants = [Variant("before", args.before, ()), Variant("after", HERE, ()),
-                Variant("after --model fast", HERE, ("--model", "fast"))]
+                Variant("after --model full", HERE, ("--model", "full"))]
     if args.exact_too:
         variants.append(Variant("after --exact", HERE, ("--exact",)))
     work = Path(tempfile.mkdtemp(prefix="render_ab_"))

@@ -57,7 +57,8 @@ def run(args: list[str], tree: Path = HERE, cwd: Path | None = None) -> tuple[fl
 
 def model_args(args: argparse.Namespace) -> list[str]:
     extra = ["--device", "cpu", "--views", str(args.views), *(["--exact"] if args.exact else [])]
-    return extra + (["--checkpoint", str(args.checkpoint)] if args.checkpoint else ["--model", args.model])
+    weights = ["--checkpoint", str(args.checkpoint)] if args.checkpoint else ["--model", args.model] if args.model else []
+    return extra + weights
 
 
 def quality(args: argparse.Namespace, work: Path) -> None:
@@ -169,7 +170,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("figure", choices=["quality", "speed", "photos", "path"])
     parser.add_argument("--checkpoint", type=Path, help="default: the bundled weights of --model")
-    parser.add_argument("--model", default="default", help="which bundled generator (default or fast)")
+    parser.add_argument("--model", help="which bundled generator (fast or full) [default: the default one]")
     parser.add_argument("--exact", action="store_true", help="render without the shortcuts (render --exact)")
     parser.add_argument("--views", type=int, default=10, help="reference views")
     parser.add_argument("--resolution", type=int, default=200)

@@ -2,7 +2,7 @@
 
     python3 bench/render_flops.py                       # the bundled generator, 200x200, 10 views
     python3 bench/render_flops.py --size 800 --device cuda
-    python3 bench/render_flops.py --model fast
+    python3 bench/render_flops.py --model full
 
 Counts the floating-point operations of ``InsertNeRF.render`` on one chunk of rays with torch's FlopCounterMode
 (matrix products and convolutions; element-wise ops are not counted, so the figure is a lower bound), scales it
@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from model_speed import FAR, NEAR, orbit  # noqa: E402
 
-from insertnerf_cli.checkpoint import bundled_checkpoint, load_model  # noqa: E402
+from insertnerf_cli.checkpoint import DEFAULT_MODEL, bundled_checkpoint, load_model  # noqa: E402
 from insertnerf_cli.model import SourceViews  # noqa: E402
 from insertnerf_cli.rays import rays_for_image  # noqa: E402
 from insertnerf_cli.render import CoarseGrid, Shortcuts  # noqa: E402
@@ -35,7 +35,7 @@ from insertnerf_cli.render import CoarseGrid, Shortcuts  # noqa: E402
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", type=Path, help="generator weights (default: the bundled --model)")
-    parser.add_argument("--model", default="default", help="which bundled generator: default or fast")
+    parser.add_argument("--model", default=DEFAULT_MODEL, help="which bundled generator: fast or full")
     parser.add_argument("--size", type=int, default=200, help="frame side in pixels")
     parser.add_argument("--views", type=int, default=10, help="reference views")
     parser.add_argument("--chunk", type=int, default=128, help="rays per network call")

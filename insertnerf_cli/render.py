@@ -38,12 +38,13 @@ class Shortcuts:
         coarse_stride: the coarse pass runs on every coarse_stride-th pixel of each row and column (and the last
             ones); every other pixel places its fine samples by the bilinear blend of the weights of its four
             nearest coarse rays. Neighbouring rays cross the same surfaces at nearly the same depth, and every ray
-            of a frame has the same coarse sample depths (one near/far), so the weights carry over. 1: exact.
+            of a frame has the same coarse sample depths (one near/far), so the weights carry over. 1: exact. 3 cost
+            0.02 dB against 2 on fresh procedural scenes and none on the dev captures (docs/benchmarks.md).
         empty_opacity: a pixel whose four nearest coarse rays all see less opacity than this shows background and
             gets no fine pass. 0: never skip.
     """
 
-    coarse_stride: int = 2
+    coarse_stride: int = 3
     empty_opacity: float = 1e-3
 
     def __post_init__(self) -> None:

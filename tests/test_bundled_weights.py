@@ -25,12 +25,14 @@ def test_bundled_model_renders_a_finite_image(one_thread):
     assert ((out.depth >= NEAR - 1e-4) & (out.depth <= FAR + 1e-4)).all()
 
 
-def test_bundled_fast_model_loads_with_fewer_samples_and_renders(one_thread):
+def test_bundled_fast_model_is_the_default_and_takes_fewer_samples_than_full(one_thread):
     path = bundled_checkpoint("fast")
-    assert path.stat().st_size <= MAX_BYTES
-    model, config = load_model(path, torch.device("cpu"))
-    _, default = load_model(bundled_checkpoint(), torch.device("cpu"))
-    assert config.samples_coarse + config.samples_fine < default.samples_coarse + default.samples_fine
+    assert path == bundled_checkpoint()
+    full = bundled_checkpoint("full")
+    assert full.stat().st_size <= MAX_BYTES
+    _, config = load_model(path, torch.device("cpu"))
+    model, full_config = load_model(full, torch.device("cpu"))
+    assert config.samples_coarse + config.samples_fine < full_config.samples_coarse + full_config.samples_fine
     size = 24
     out = render_image(model, model.encode(sphere_views(3, size)), orbit_cameras(1, size, phase=0.4), NEAR, FAR)
     assert torch.isfinite(out.rgb).all() and ((out.depth >= NEAR - 1e-4) & (out.depth <= FAR + 1e-4)).all()

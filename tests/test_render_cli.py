@@ -13,7 +13,7 @@ import torch
 from click.testing import CliRunner
 
 from insertnerf_cli.cameras import Cameras, intrinsics
-from insertnerf_cli.checkpoint import save_checkpoint
+from insertnerf_cli.checkpoint import bundled_checkpoint, checkpoint_sha256, save_checkpoint
 from insertnerf_cli.cli import cli
 from insertnerf_cli.config import ModelConfig
 from insertnerf_cli.model import InsertNeRF
@@ -241,14 +241,18 @@ def test_bad_input_is_one_line_error(scene_and_checkpoint, tmp_path):
     assert result.output.startswith("Error:") and len(result.output.strip().splitlines()) == 1
 
 
-def test_model_fast_renders_with_the_bundled_fast_weights_and_excludes_checkpoint(scene_and_checkpoint, tmp_path):
+@pytest.mark.parametrize("model", ["full", "fast"])
+def test_model_renders_with_bundled_weights_and_excludes_checkpoint(scene_and_checkpoint, tmp_path, model):
     scene, ckpt = scene_and_checkpoint
-    out = tmp_path / "fast"
-    result = run("render", scene, "--out", out, "--model", "fast", "--device", "cpu", "--resolution", 16,
+    out = tmp_path / model
+    result = run("render", scene, "--out", out, "--model", model, "--device", "cpu", "--resolution", 16,
                  "--views", 2, "--frames", 1)
     assert result.exit_code == 0, result.output
     assert (out / "frames" / "00000.png").is_file()
-    both = _render(scene, ckpt, tmp_path / "both", "--model", "fast")
+    state = json.loads((out / STATE_FILE).read_text())
+    assert state["checkpoint_sha256"] == checkpoint_sha256(bundled_checkpoint(model))
+    # Naming the default model beside --checkpoint is refused too: two sources of weights, whichever they are.
+    both = _render(scene, ckpt, tmp_path / "both", "--model", model)
     assert both.exit_code == 1 and "pass one of them" in both.output
     assert not (tmp_path / "both").exists()
 

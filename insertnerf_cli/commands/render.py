@@ -6,7 +6,7 @@ from typing import Any, Callable
 
 import click
 
-from ..checkpoint import BUNDLED_MODELS, bundled_checkpoint
+from ..checkpoint import BUNDLED_MODELS, DEFAULT_MODEL, bundled_checkpoint
 from ..errors import UserError
 from ..pipeline import DEFAULT_FPS, DEFAULT_RESOLUTION, DEFAULT_VIEWS, RenderConfig, render_scene
 from ..paths import PATH_KINDS
@@ -21,9 +21,10 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
         click.option("--resolution", type=click.IntRange(min=0), default=DEFAULT_RESOLUTION, show_default=True,
                      help="Long side of the rendered images in pixels; 0 = the photos' own size. Never upsamples: "
                      "a larger value gives the photos' size."),
-        click.option("--model", type=click.Choice(sorted(BUNDLED_MODELS)), default="default", show_default=True,
-                     help="Which bundled pretrained generator renders: fast has 32+16 samples per ray instead of "
-                     "64+64 (2.5x faster, about the same quality; docs/model-card.md)."),
+        click.option("--model", type=click.Choice(sorted(BUNDLED_MODELS)),
+                     help="Which bundled pretrained generator renders: fast takes 32+16 samples per ray, full "
+                     f"64+64 (2.5x slower, the same picture quality, smoother depth maps; docs/model-card.md).  "
+                     f"[default: {DEFAULT_MODEL}]"),
         click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                      help="Generator weights from `insertnerf train` or `finetune` instead of a bundled --model."),
         click.option("--chunk", type=click.IntRange(min=1),
@@ -31,20 +32,20 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
                      "CUDA]"),
         click.option("--exact", is_flag=True,
                      help="Give every pixel its own coarse pass and a fine pass (slower). By default the coarse "
-                     "pass runs on every 2nd pixel and background pixels skip the fine pass (within 0.3 dB)."),
+                     "pass runs on every 3rd pixel and background pixels skip the fine pass (within 0.3 dB)."),
     ]
     for option in reversed(options):
         func = option(func)
     return func
 
 
-def chosen_weights(model: str, checkpoint: Path | None) -> Path | None:
+def chosen_weights(model: str | None, checkpoint: Path | None) -> Path | None:
     """The --checkpoint, else None for the default bundled generator, else the bundled --model's file."""
     if checkpoint is not None:
-        if model != "default":
+        if model is not None:
             raise UserError(f"--model {model} and --checkpoint {checkpoint} both name weights: pass one of them.")
         return checkpoint
-    return None if model == "default" else bundled_checkpoint(model)
+    return None if model in (None, DEFAULT_MODEL) else bundled_checkpoint(model)
 
 
 @click.command("render")
