@@ -1,0 +1,68 @@
+"""`insertnerf eval` scores of the same weights at several coarse strides of render's shortcuts (issue 11).
+
+    python3 bench/shortcut_quality.py ../shared/realdata/beer ../shared/realdata/mold_gold_cape --strides exact,2,3
+    insertnerf synth /tmp/proc --scenes 6 --views 53 --test-views 3 --resolution 200 --square --layout object \\
+        --seed 900001 && python3 bench/shortcut_quality.py /tmp/proc/scene_0000* --strides 2,3
+
+Each scene is scored by the library behind `insertnerf eval` (its default protocol: 10 nearest views, 256 px, every
+held-out view) once per entry of --strides: "exact" is `eval --exact`, a number N is the default shortcuts with the
+coarse pass on every N-th pixel. The stride is not a command-line option of insertnerf, so this script sets the
+default of `render.Shortcuts` for the duration of each score. Prints one line per score and the means per stride.
+"""
+from __future__ import annotations
+
+import argparse
+import functools
+import statistics
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from insertnerf_cli import render  # noqa: E402
+from insertnerf_cli.pipeline import EvalConfig, evaluate_scene  # noqa: E402
+
+
+@contextmanager
+def coarse_stride(stride: int) -> Iterator[None]:
+    """render.Shortcuts() means Shortcuts(coarse_stride=stride) inside the block."""
+    original = render.Shortcuts
+    render.Shortcuts = functools.partial(original, coarse_stride=stride)
+    try:
+        yield
+    finally:
+        render.Shortcuts = original
+
+
+def score(scene: Path, variant: str, checkpoint: Path | None) -> tuple[float, float]:
+    config = EvalConfig(checkpoint=checkpoint, device="cpu", exact=variant == "exact")
+    if variant == "exact":
+        report = evaluate_scene(scene, config)
+    else:
+        with coarse_stride(int(variant)):
+            report = evaluate_scene(scene, config)
+    return report.psnr, report.ssim
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("scenes", nargs="+", type=Path)
+    parser.add_argument("--strides", default="exact,2,3", help="comma-separated: exact and/or coarse strides")
+    parser.add_argument("--checkpoint", type=Path, help="weights (default: the bundled default generator)")
+    args = parser.parse_args()
+    variants = [v.strip() for v in args.strides.split(",") if v.strip()]
+    results: dict[str, list[tuple[float, float]]] = {v: [] for v in variants}
+    for scene in args.scenes:
+        for variant in variants:
+            psnr, ssim = score(scene, variant, args.checkpoint)
+            results[variant].append((psnr, ssim))
+            print(f"{scene.name}: {variant:>5}  PSNR {psnr:.3f} dB  SSIM {ssim:.4f}", flush=True)
+    for variant, rows in results.items():
+        print(f"mean over {len(rows)} scenes, {variant:>5}: PSNR {statistics.mean(p for p, _ in rows):.3f} dB  "
+              f"SSIM {statistics.mean(s for _, s in rows):.4f}")
+
+
+if __name__ == "__main__":
+    main()
