@@ -2,6 +2,7 @@
 
     git worktree add /tmp/before11 c9dffde          # the last commit before the render shortcuts
     python3 bench/render_ab.py --before /tmp/before11 --rounds 3
+    python3 bench/render_ab.py --before /tmp/before11 --also stride3=/tmp/stride3   # another tree's defaults too
 
 Each round renders one fresh procedural object scene (made once by `insertnerf synth`) with every variant, in
 an order that rotates between rounds so that a drift of the machine's speed hits every variant alike: the code
@@ -43,6 +44,8 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--exact-too", action="store_true", help="also time this tree with --exact")
+    parser.add_argument("--also", action="append", default=[], metavar="LABEL=TREE",
+                        help="also time the defaults of another checkout (repeatable)")
     parser.add_argument("--seed", type=int, default=900001)
     args = parser.parse_args()
 
@@ -50,6 +53,11 @@ def main() -> None:
                 Variant("after --model full", HERE, ("--model", "full"))]
     if args.exact_too:
         variants.append(Variant("after --exact", HERE, ("--exact",)))
+    for item in args.also:
+        label, _, tree = item.partition("=")
+        if not tree or not Path(tree).is_dir():
+            parser.error(f"--also wants LABEL=TREE with TREE a checkout, got {item!r}")
+        variants.append(Variant(label, Path(tree), ()))
     work = Path(tempfile.mkdtemp(prefix="render_ab_"))
     try:
         scene = work / "data"

@@ -29,7 +29,7 @@ from model_speed import FAR, NEAR, orbit  # noqa: E402
 from insertnerf_cli.checkpoint import DEFAULT_MODEL, bundled_checkpoint, load_model  # noqa: E402
 from insertnerf_cli.model import SourceViews  # noqa: E402
 from insertnerf_cli.rays import rays_for_image  # noqa: E402
-from insertnerf_cli.render import CoarseGrid, Shortcuts  # noqa: E402
+from insertnerf_cli.render import PixelGrid, Shortcuts  # noqa: E402
 
 
 def main() -> None:
@@ -76,7 +76,7 @@ def main() -> None:
     print(f"model: {config.samples_coarse}+{config.samples_fine} samples, {args.views} views; chunk {args.chunk} rays")
     print(f"FLOPs: {flops / 1e9:.2f} GFLOP per chunk, {frame_flops / 1e9:.0f} GFLOP per {args.size}x{args.size} "
           f"frame ({flops / args.chunk / 1e6:.1f} MFLOP per ray)")
-    grid = len(CoarseGrid(args.size, args.size, Shortcuts().coarse_stride, device).index) / args.size ** 2
+    grid = len(PixelGrid(args.size, args.size, Shortcuts().coarse_stride, device).index) / args.size ** 2
     per_frame = args.size * args.size / args.chunk / 1e9
     print(f"of which coarse {coarse_flops * per_frame:.0f} and fine {fine_flops * per_frame:.0f} GFLOP; with render's "
           f"default shortcuts (coarse pass on {100 * grid:.0f} % of the pixels) "

@@ -42,21 +42,34 @@ class Shortcuts:
             0.02 dB against 2 on fresh procedural scenes and none on the dev captures (docs/benchmarks.md).
         empty_opacity: a pixel whose four nearest coarse rays all see less opacity than this shows background and
             gets no fine pass. 0: never skip.
+        fine_stride: the fine pass runs first on every fine_stride-th pixel of each row and column (and the last
+            ones); then on the grid of half that stride (fine_levels), where a pixel not yet rendered takes the
+            bilinear blend of its four nearest results of the level before when they agree (see smooth_rgb,
+            smooth_depth) and gets its own fine pass otherwise; and so on down to every pixel. The generator's
+            pictures are smooth over most of a frame, so most pixels need no pass of their own. 1: every pixel.
+        smooth_rgb: the four agree when each colour channel and the opacity differ by at most this between them.
+        smooth_depth: ... and their depths by at most this fraction of the frame's depth range (far - near), so
+            that a depth map is never blended across an edge that the colours do not show.
     """
 
     coarse_stride: int = 3
     empty_opacity: float = 1e-3
+    fine_stride: int = 4
+    smooth_rgb: float = 0.03
+    smooth_depth: float = 0.1
 
     def __post_init__(self) -> None:
-        if self.coarse_stride < 1 or not 0.0 <= self.empty_opacity < 1.0:
-            raise ValueError(f"coarse_stride must be >= 1 and empty_opacity in [0, 1), got {self}")
+        if (self.coarse_stride < 1 or self.fine_stride < 1 or not 0.0 <= self.empty_opacity < 1.0
+                or not 0.0 <= self.smooth_rgb <= 1.0 or not 0.0 <= self.smooth_depth <= 1.0):
+            raise ValueError(f"strides must be >= 1, empty_opacity in [0, 1) and the smooth_ bounds in [0, 1], "
+                             f"got {self}")
 
     @property
     def exact(self) -> bool:
-        return self.coarse_stride == 1 and self.empty_opacity == 0.0
+        return self.coarse_stride == 1 and self.empty_opacity == 0.0 and self.fine_stride == 1
 
 
-EXACT = Shortcuts(coarse_stride=1, empty_opacity=0.0)
+EXACT = Shortcuts(coarse_stride=1, empty_opacity=0.0, fine_stride=1)
 
 
 def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, near: float | Tensor,
@@ -109,34 +122,72 @@ def _no_grad(work: Callable[[Tensor], T], index: Tensor) -> T:
 def _render_with_shortcuts(model: "InsertNeRF", encoded: "EncodedViews", rays: Rays, size: tuple[int, int],
                            shortcuts: Shortcuts, chunked: Callable) -> tuple[Tensor, ...]:
     """(rgb [R, 3], depth [R], opacity [R]) of the frame's R = H * W rays: the coarse pass on a grid of every
-    coarse_stride-th pixel, fine samples placed by the blend of the nearest grid rays, empty pixels skipped."""
-    grid = CoarseGrid(*size, shortcuts.coarse_stride, rays.origins.device)
+    coarse_stride-th pixel, fine samples placed by the blend of the nearest grid rays, empty pixels skipped, the
+    fine pass on a grid of every fine_stride-th pixel and on the pixels between whose neighbours disagree."""
+    device = rays.origins.device
+    grid = PixelGrid(*size, shortcuts.coarse_stride, device)
     grid_rays = rays[grid.index]
     passes = chunked(lambda i: model.coarse_weights(encoded, grid_rays[i]), len(grid_rays))
     grid_weights = torch.cat([w for _, w in passes])  # [G, S_c]
     weights = grid.blend(grid_weights)  # [R, S_c]
-    live = (grid.nearest_max(grid_weights.sum(dim=-1)) >= shortcuts.empty_opacity).nonzero()[:, 0]  # [R_live]
+    live = grid.nearest_max(grid_weights.sum(dim=-1)) >= shortcuts.empty_opacity  # [R]
     # One near/far for the whole frame: every ray has the coarse sample depths of the first grid ray.
     t, edges = passes[0][0].t[:1], passes[0][0].edges[:1]  # [1, S_c], [1, S_c + 1]
 
-    def fine(i: Tensor) -> Composite:
-        rows = live[i]
-        return model.render_fine(encoded, rays[rows], RaySamples(t.expand(len(rows), -1),
-                                                                 edges.expand(len(rows), -1)), weights[rows])
+    def fine(rows: Tensor) -> Callable[[Tensor], Composite]:
+        def run(i: Tensor) -> Composite:
+            return model.render_fine(encoded, rays[rows[i]], RaySamples(t.expand(len(i), -1),
+                                                                        edges.expand(len(i), -1)), weights[rows[i]])
+        return run
 
-    outs = chunked(fine, len(live))
-    rgb = model.background.to(weights).expand(len(rays), 3).clone()
-    depth = t.mean().expand(len(rays)).clone()  # what compositing gives a ray that sees nothing
-    opacity = weights.new_zeros(len(rays))
-    if outs:
-        rgb[live] = torch.cat([o.rgb for o in outs])
-        depth[live] = torch.cat([o.depth for o in outs])
-        opacity[live] = torch.cat([o.opacity for o in outs])
-    return rgb, depth, opacity
+    # [R, 5]: rgb, depth, opacity; what compositing gives a ray that sees nothing until a fine pass fills it
+    out = torch.cat([model.background.to(weights).expand(len(rays), 3), t.mean().expand(len(rays), 1),
+                     weights.new_zeros(len(rays), 1)], dim=-1)
+
+    def fill(rows: Tensor) -> None:
+        outs = chunked(fine(rows), len(rows))
+        if outs:
+            out[rows] = torch.cat([torch.cat([o.rgb, o.depth[:, None], o.opacity[:, None]], dim=-1) for o in outs])
+
+    _fine_pass_by_levels(out, live, size, shortcuts, edges[0, -1] - edges[0, 0], fill)
+    return out[:, :3], out[:, 3], out[:, 4]
 
 
-class CoarseGrid:
-    """The pixels of an H x W frame that get a coarse pass: every ``stride``-th row and column, plus the last
+def _fine_pass_by_levels(out: Tensor, live: Tensor, size: tuple[int, int], shortcuts: Shortcuts, depth_range: Tensor,
+                         fill: Callable[[Tensor], None]) -> None:
+    """Fill ``out`` [R, 5] (rgb, depth, opacity) of the ``live`` [R] pixels level by level (fine_levels): a
+    level's new pixels take the blend of the level before where its four pixels agree, else ``fill`` gives them
+    their own fine pass."""
+    known = torch.zeros_like(live)
+    previous: PixelGrid | None = None
+    for stride in fine_levels(shortcuts.fine_stride):
+        grid = PixelGrid(*size, stride, live.device)
+        todo = torch.zeros_like(live)
+        todo[grid.index] = True
+        todo &= live & ~known
+        if previous is not None:
+            corners = out[previous.index]  # [G, 5]
+            spread = previous.spread(corners)  # [R, 5]
+            smooth = todo & ((spread[:, [0, 1, 2, 4]].amax(dim=-1) <= shortcuts.smooth_rgb)
+                             & (spread[:, 3] <= shortcuts.smooth_depth * depth_range.clamp(min=1e-6)))  # [R]
+            out[smooth] = previous.blend(corners)[smooth]
+            todo &= ~smooth
+        fill(todo.nonzero()[:, 0])
+        known[grid.index] = True
+        previous = grid
+
+
+def fine_levels(stride: int) -> list[int]:
+    """The strides of the fine pass's levels, coarse to fine: stride, then halved (rounded down) down to 1, so
+    that each level's grid contains the one before (4 -> [4, 2, 1], 3 -> [3, 1], 1 -> [1])."""
+    levels = [stride]
+    while levels[-1] > 1:
+        levels.append(levels[-1] // 2)
+    return levels
+
+
+class PixelGrid:
+    """The pixels of an H x W frame that a pass runs on first: every ``stride``-th row and column, plus the last
     ones, so that every pixel lies between grid pixels and none is extrapolated.
 
     Attributes:
@@ -161,6 +212,12 @@ class CoarseGrid:
         """[G] values at the grid pixels -> [H * W] the largest of the four around each pixel."""
         corners = self._corners(values[:, None])
         return torch.stack(corners).amax(dim=0).reshape(-1)
+
+    def spread(self, values: Tensor) -> Tensor:
+        """[G, C] values at the grid pixels -> [H * W, C] the largest minus the smallest of the four around each
+        pixel, per channel."""
+        corners = torch.stack(self._corners(values))  # [4, H, W, C]
+        return (corners.amax(dim=0) - corners.amin(dim=0)).reshape(-1, values.shape[-1])
 
     def _corners(self, values: Tensor) -> list[Tensor]:
         """The [H, W, C] values of the grid pixels above-left, above-right, below-left, below-right of each pixel."""

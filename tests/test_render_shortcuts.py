@@ -1,4 +1,5 @@
-"""The frame renderer's shortcuts (coarse pass on a pixel grid, empty pixels skipped) against the exact path."""
+"""The frame renderer's shortcuts (coarse pass on a pixel grid, empty pixels skipped, fine pass on a grid with the
+smooth pixels between blended) against the exact path."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,7 +9,7 @@ import torch
 
 from insertnerf_cli.checkpoint import bundled_checkpoint, load_model
 from insertnerf_cli.compositing import psnr
-from insertnerf_cli.render import EXACT, CoarseGrid, Shortcuts, render_image
+from insertnerf_cli.render import EXACT, PixelGrid, Shortcuts, render_image
 from model_fixtures import (FAR, NEAR, TINY, orbit_cameras, sphere_images, sphere_views,  # noqa: F401
                             tiny_model_and_views)
 
@@ -17,7 +18,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 @pytest.mark.parametrize("height, width, stride", [(7, 9, 2), (8, 8, 3), (5, 1, 2), (6, 6, 1), (4, 5, 10)])
 def test_grid_blend_reproduces_linear_functions_and_keeps_grid_values(height, width, stride):
-    grid = CoarseGrid(height, width, stride, torch.device("cpu"))
+    grid = PixelGrid(height, width, stride, torch.device("cpu"))
     rows, cols = grid.index // width, grid.index % width
     assert rows.max() == height - 1 and cols.max() == width - 1  # the last row and column are on the grid
     linear = torch.stack([2.0 * rows + 0.5 * cols + 1.0, -rows.float() + 3 * cols], dim=-1)  # [G, 2]
@@ -29,7 +30,7 @@ def test_grid_blend_reproduces_linear_functions_and_keeps_grid_values(height, wi
 
 
 def test_grid_nearest_max_is_the_largest_of_the_surrounding_grid_pixels():
-    grid = CoarseGrid(5, 5, 2, torch.device("cpu"))  # grid pixels at rows/cols 0, 2, 4
+    grid = PixelGrid(5, 5, 2, torch.device("cpu"))  # grid pixels at rows/cols 0, 2, 4
     values = torch.zeros(len(grid.index))
     values[4] = 1.0  # the grid pixel (2, 2), the centre
     near = grid.nearest_max(values).reshape(5, 5)
@@ -41,22 +42,26 @@ def test_grid_nearest_max_is_the_largest_of_the_surrounding_grid_pixels():
 def test_stride_one_without_skipping_is_the_exact_path_in_any_chunking():
     model, encoded, camera = tiny_model_and_views()
     exact = render_image(model, encoded, camera, NEAR, FAR, chunk=10_000, shortcuts=EXACT)
-    grid_path = render_image(model, encoded, camera, NEAR, FAR, chunk=7, shortcuts=Shortcuts(1, 1e-12))
+    grid_path = render_image(model, encoded, camera, NEAR, FAR, chunk=7,
+                             shortcuts=Shortcuts(1, 1e-12, fine_stride=1))
     assert (grid_path.opacity > 0).all()  # nothing was skipped: the comparison covers the fine pass of every ray
     for name in ("rgb", "depth", "opacity"):
         torch.testing.assert_close(getattr(grid_path, name), getattr(exact, name))
 
 
-@pytest.mark.parametrize("stride", [2, 3])
-def test_coarse_grid_costs_little_against_the_exact_path_with_the_bundled_weights(stride):
+def bundled_exact_and_fast(size: int, shortcuts: Shortcuts):
+    """(exact, shortcut, true image) of a sphere view rendered by the bundled generator from 4 views."""
     model, _ = load_model(bundled_checkpoint(), torch.device("cpu"))
-    size = 32
     camera = orbit_cameras(1, size, phase=0.4)
     with torch.inference_mode():
         encoded = model.encode(sphere_views(4, size))
     exact = render_image(model, encoded, camera, NEAR, FAR, shortcuts=EXACT)
-    fast = render_image(model, encoded, camera, NEAR, FAR, shortcuts=Shortcuts(stride, 0.0))
-    truth = sphere_images(camera)[0]
+    return exact, render_image(model, encoded, camera, NEAR, FAR, shortcuts=shortcuts), sphere_images(camera)[0]
+
+
+@pytest.mark.parametrize("stride", [2, 3])
+def test_coarse_grid_costs_little_against_the_exact_path_with_the_bundled_weights(stride):
+    exact, fast, truth = bundled_exact_and_fast(32, Shortcuts(stride, 0.0, fine_stride=1))
     assert psnr(((fast.rgb - exact.rgb) ** 2).mean()) > 25.0  # 30 and 26 dB here; 40-44 dB at 100 px
     # no worse against the true image than the exact path, to within 0.3 dB
     assert psnr(((fast.rgb - truth) ** 2).mean()) > psnr(((exact.rgb - truth) ** 2).mean()) - 0.3
@@ -72,9 +77,55 @@ def test_empty_pixels_are_skipped_and_show_the_background_as_the_exact_path_does
     torch.testing.assert_close(skipped.depth, exact.depth, atol=1e-3, rtol=0)
 
 
+def test_grid_spread_is_the_range_of_the_four_surrounding_grid_pixels():
+    grid = PixelGrid(5, 5, 2, torch.device("cpu"))  # grid pixels at rows/cols 0, 2, 4
+    values = torch.zeros(len(grid.index), 2)
+    values[4] = torch.tensor([1.0, -2.0])  # the grid pixel (2, 2), the centre
+    spread = grid.spread(values).reshape(5, 5, 2)
+    expected = torch.zeros(5, 5, 2)
+    expected[1:4, 1:4] = torch.tensor([1.0, 2.0])
+    expected[2, 2] = 0.0  # a grid pixel's four "neighbours" are itself
+    torch.testing.assert_close(spread, expected)
+
+
+def test_fine_grid_with_nothing_smooth_is_the_every_pixel_path():
+    model, encoded, camera = tiny_model_and_views(size=9)
+    every = render_image(model, encoded, camera, NEAR, FAR, chunk=5, shortcuts=Shortcuts(2, 0.0, fine_stride=1))
+    grid = render_image(model, encoded, camera, NEAR, FAR, chunk=5,
+                        shortcuts=Shortcuts(2, 0.0, fine_stride=2, smooth_rgb=0.0, smooth_depth=0.0))
+    for name in ("rgb", "depth", "opacity"):
+        torch.testing.assert_close(getattr(grid, name), getattr(every, name))
+
+
+def test_fine_grid_blends_the_pixels_between_when_everything_is_smooth():
+    model, encoded, camera = tiny_model_and_views(size=9)
+    every = render_image(model, encoded, camera, NEAR, FAR, shortcuts=Shortcuts(2, 0.0, fine_stride=1))
+    blended = render_image(model, encoded, camera, NEAR, FAR,
+                           shortcuts=Shortcuts(2, 0.0, fine_stride=3, smooth_rgb=1.0, smooth_depth=1.0))
+    grid = PixelGrid(9, 9, 3, torch.device("cpu"))
+    for name in ("rgb", "depth", "opacity"):
+        exact, fast = getattr(every, name).reshape(81, -1), getattr(blended, name).reshape(81, -1)
+        torch.testing.assert_close(fast[grid.index], exact[grid.index])  # grid pixels: their own fine pass
+        torch.testing.assert_close(fast, grid.blend(exact[grid.index]))  # the rest: the blend of the grid's
+    assert not torch.allclose(blended.rgb, every.rgb)  # the tiny random field is not smooth: blending showed
+
+
+@pytest.mark.parametrize("fine_stride", [2, 4])
+def test_fine_grid_costs_little_against_the_exact_path_with_the_bundled_weights(fine_stride):
+    exact, fast, truth = bundled_exact_and_fast(48, Shortcuts(1, 0.0, fine_stride=fine_stride))
+    assert (fast.rgb != exact.rgb).any(dim=-1).float().mean() > 0.01  # some pixels were blended
+    assert psnr(((fast.rgb - exact.rgb) ** 2).mean()) > 40.0
+    assert psnr(((fast.rgb - truth) ** 2).mean()) > psnr(((exact.rgb - truth) ** 2).mean()) - 0.3
+    assert ((fast.depth - exact.depth).abs() <= 0.05 * (FAR - NEAR)).float().mean() > 0.99
+
+
 def test_shortcuts_refuse_nonsense():
     with pytest.raises(ValueError):
         Shortcuts(coarse_stride=0)
     with pytest.raises(ValueError):
         Shortcuts(empty_opacity=1.0)
-    assert EXACT.exact and not Shortcuts().exact
+    with pytest.raises(ValueError):
+        Shortcuts(fine_stride=0)
+    with pytest.raises(ValueError):
+        Shortcuts(smooth_rgb=-0.1)
+    assert EXACT.exact and not Shortcuts().exact and not Shortcuts(1, 0.0, fine_stride=2).exact
