@@ -41,6 +41,9 @@ def main() -> None:
     parser.add_argument("--chunk", type=int, default=128, help="rays per network call")
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--fine-fraction", type=float, default=1.0,
+                        help="share of the pixels that get their own fine pass: it depends on the picture (render's "
+                        "fine grid blends the rest; 0.2-0.4 on the dev scenes, docs/benchmarks.md)")
     parser.add_argument("--peak-gflops", type=float,
                         help="peak FP32 GFLOP/s of one core (CPU) or of the GPU (default: a measured large matmul)")
     args = parser.parse_args()
@@ -79,8 +82,9 @@ def main() -> None:
     grid = len(PixelGrid(args.size, args.size, Shortcuts().coarse_stride, device).index) / args.size ** 2
     per_frame = args.size * args.size / args.chunk / 1e9
     print(f"of which coarse {coarse_flops * per_frame:.0f} and fine {fine_flops * per_frame:.0f} GFLOP; with render's "
-          f"default shortcuts (coarse pass on {100 * grid:.0f} % of the pixels) "
-          f"{(grid * coarse_flops + fine_flops) * per_frame:.0f} GFLOP per frame")
+          f"default shortcuts (coarse pass on {100 * grid:.0f} % of the pixels, fine pass on "
+          f"{100 * args.fine_fraction:.0f} %) {(grid * coarse_flops + args.fine_fraction * fine_flops) * per_frame:.0f} "
+          f"GFLOP per frame")
     print(f"achieved: {seconds * 1e3:.1f} ms per chunk = {rate:.1f} GFLOP/s on one thread "
           f"({frame_flops / 1e9 / rate:.1f} thread-seconds per frame)")
     peak = args.peak_gflops or matmul_gflops(device)

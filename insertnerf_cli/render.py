@@ -39,7 +39,8 @@ class Shortcuts:
             ones); every other pixel places its fine samples by the bilinear blend of the weights of its four
             nearest coarse rays. Neighbouring rays cross the same surfaces at nearly the same depth, and every ray
             of a frame has the same coarse sample depths (one near/far), so the weights carry over. 1: exact. 3 cost
-            0.02 dB against 2 on fresh procedural scenes and none on the dev captures (docs/benchmarks.md).
+            0.02 dB against 2 on fresh procedural scenes and none on the dev captures, 4 another 0.02 dB
+            (docs/benchmarks.md).
         empty_opacity: a pixel whose four nearest coarse rays all see less opacity than this shows background and
             gets no fine pass. 0: never skip.
         fine_stride: the fine pass runs first on every fine_stride-th pixel of each row and column (and the last
@@ -52,7 +53,7 @@ class Shortcuts:
             that a depth map is never blended across an edge that the colours do not show.
     """
 
-    coarse_stride: int = 3
+    coarse_stride: int = 4
     empty_opacity: float = 1e-3
     fine_stride: int = 4
     smooth_rgb: float = 0.03

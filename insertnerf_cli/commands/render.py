@@ -32,7 +32,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
                      "CUDA]"),
         click.option("--exact", is_flag=True,
                      help="Give every pixel its own coarse pass and a fine pass (slower). By default the coarse "
-                     "pass runs on every 3rd pixel, background pixels skip the fine pass, and pixels between "
+                     "pass runs on every 4th pixel, background pixels skip the fine pass, and pixels between "
                      "agreeing neighbours are blended from them (within 0.3 dB)."),
     ]
     for option in reversed(options):
