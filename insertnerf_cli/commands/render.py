@@ -23,7 +23,7 @@ def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
                      "a larger value gives the photos' size."),
         click.option("--model", type=click.Choice(sorted(BUNDLED_MODELS)),
                      help="Which bundled pretrained generator renders: fast takes 32+16 samples per ray, full "
-                     f"64+64 (2.5x slower, the same picture quality, smoother depth maps; docs/model-card.md).  "
+                     f"64+64 (about 2x slower, the same picture quality, smoother depth maps; docs/model-card.md).  "
                      f"[default: {DEFAULT_MODEL}]"),
         click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                      help="Generator weights from `insertnerf train` or `finetune` instead of a bundled --model."),
