@@ -9,7 +9,7 @@ import torch
 
 from insertnerf_cli.checkpoint import bundled_checkpoint, load_model
 from insertnerf_cli.compositing import psnr
-from insertnerf_cli.render import EXACT, PixelGrid, Shortcuts, render_image
+from insertnerf_cli.render import EXACT, PixelGrid, Shortcuts, fine_levels, render_image
 from model_fixtures import (FAR, NEAR, TINY, orbit_cameras, sphere_images, sphere_views,  # noqa: F401
                             tiny_model_and_views)
 
@@ -88,11 +88,12 @@ def test_grid_spread_is_the_range_of_the_four_surrounding_grid_pixels():
     torch.testing.assert_close(spread, expected)
 
 
-def test_fine_grid_with_nothing_smooth_is_the_every_pixel_path():
-    model, encoded, camera = tiny_model_and_views(size=9)
+@pytest.mark.parametrize("size, fine_stride", [(9, 2), (9, 4), (1, 4), (2, 8)])
+def test_fine_grid_with_nothing_smooth_is_the_every_pixel_path(size, fine_stride):
+    model, encoded, camera = tiny_model_and_views(size=size)
     every = render_image(model, encoded, camera, NEAR, FAR, chunk=5, shortcuts=Shortcuts(2, 0.0, fine_stride=1))
     grid = render_image(model, encoded, camera, NEAR, FAR, chunk=5,
-                        shortcuts=Shortcuts(2, 0.0, fine_stride=2, smooth_rgb=0.0, smooth_depth=0.0))
+                        shortcuts=Shortcuts(2, 0.0, fine_stride=fine_stride, smooth_rgb=0.0, smooth_depth=0.0))
     for name in ("rgb", "depth", "opacity"):
         torch.testing.assert_close(getattr(grid, name), getattr(every, name))
 
@@ -117,6 +118,11 @@ def test_fine_grid_costs_little_against_the_exact_path_with_the_bundled_weights(
     assert psnr(((fast.rgb - exact.rgb) ** 2).mean()) > 40.0
     assert psnr(((fast.rgb - truth) ** 2).mean()) > psnr(((exact.rgb - truth) ** 2).mean()) - 0.3
     assert ((fast.depth - exact.depth).abs() <= 0.05 * (FAR - NEAR)).float().mean() > 0.99
+
+
+def test_fine_levels_halve_down_to_every_pixel():
+    assert fine_levels(1) == [1] and fine_levels(3) == [3, 1] and fine_levels(4) == [4, 2, 1]
+    assert fine_levels(6) == [6, 3, 1]  # each level's grid contains the one before
 
 
 def test_shortcuts_refuse_nonsense():
