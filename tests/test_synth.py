@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+import multiprocessing
+import signal
 from pathlib import Path
 
 import cv2
@@ -14,7 +16,7 @@ from insertnerf_cli.cli import cli
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.synth import CaptureOptions, SceneSpec, SynthOptions, build_dataset, generate_dataset
-from insertnerf_cli.synth.dataset import render_into
+from insertnerf_cli.synth.dataset import _init_worker, _remove_temporaries, render_into
 from insertnerf_cli.synth.implicit import mesh_field, sphere_sdf
 from insertnerf_cli.synth.layouts import held_out_indices, look_at
 from insertnerf_cli.synth.scene import scene_cameras, scene_splits, scene_world
@@ -222,3 +224,23 @@ def test_cameras_stay_inside_the_enclosure_and_outside_every_shape(layout):
             elif placed.shape.kind not in enclosure:  # not even inside the shape's bounding box
                 low, high = vertices.min(axis=0), vertices.max(axis=0)
                 assert not np.any(np.all((eyes > low) & (eyes < high), axis=1)), placed.shape.kind
+
+
+def test_synth_workers_leave_ctrl_c_to_the_parent():
+    # A terminal sends Ctrl-C to every worker too; one that raised KeyboardInterrupt printed a traceback.
+    context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+    with context.Pool(1, initializer=_init_worker) as pool:
+        assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
+
+
+def test_leftover_temporary_scene_folders_are_removed_and_nothing_else(tmp_path):
+    spec = SceneSpec(index=2, seed=1, layout="object", views=4, test_views=0, resolution=32, aspects=(1.0,),
+                     capture=CaptureOptions())
+    ours = [tmp_path / ".tmp-scene_00002-123", tmp_path / ".tmp-scene_00002-77"]
+    for folder in ours:
+        (folder / "images").mkdir(parents=True)
+    theirs = [tmp_path / ".tmp-notes", tmp_path / ".tmp-scene_000021-5", tmp_path / "scene_00002"]
+    for folder in theirs:
+        folder.mkdir()
+    _remove_temporaries(tmp_path, [spec])
+    assert not any(folder.exists() for folder in ours) and all(folder.is_dir() for folder in theirs)

@@ -13,11 +13,12 @@ import json
 import multiprocessing
 import os
 import shutil
+import signal
 import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Iterator, Literal
+from typing import Iterable, Iterator, Literal
 
 from ..atomic import write_error, write_json
 from ..errors import UserError
@@ -158,8 +159,7 @@ def _prepare(out: Path, manifest: Manifest, overwrite: bool) -> None:
             raise UserError(f"{out} is not empty and has no {MANIFEST}; choose an empty or new folder, "
                             f"or pass --overwrite to write into it (its other files are kept)")
         _remove_dataset(out)
-    for leftover in out.glob(f"{_TEMP_PREFIX}*"):  # scenes a killed run did not finish
-        shutil.rmtree(leftover, ignore_errors=True)
+    _remove_temporaries(out, manifest.scenes)  # scenes a killed run did not finish
     OutputRecord(out, _OWNER).claim(MANIFEST, *(spec.name for spec in manifest.scenes))
     write_json(path, ours)
 
@@ -200,10 +200,13 @@ def _worker(job: tuple[Path, SceneSpec]) -> RenderedScene:
 
 def _init_worker() -> None:
     """One thread per worker process: the workers are the parallelism, and oversubscribed torch threads
-    slowed ray generation 50-fold on a busy 2-core machine."""
+    slowed ray generation 50-fold on a busy 2-core machine. Ctrl-C is the parent's to handle: a terminal sends
+    it to every worker too, and a worker that raised KeyboardInterrupt before the parent's pool terminated it
+    printed a traceback (bench/hostile.py, synth_ctrl_c_during_work, under load)."""
     import cv2
     import torch
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
 
@@ -239,10 +242,21 @@ def _run(out: Path, pending: list[SceneSpec], workers: int, progress: bool, tota
         else:
             context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods()
                                                   else "spawn")
-            with context.Pool(min(workers, len(pending)), initializer=_init_worker) as pool:
-                yield from _report(pool.imap_unordered(_worker, [(out, s) for s in pending]), bar, start)
+            try:
+                with context.Pool(min(workers, len(pending)), initializer=_init_worker) as pool:
+                    yield from _report(pool.imap_unordered(_worker, [(out, s) for s in pending]), bar, start)
+            finally:  # the pool has terminated and joined its workers: the scenes they left half-done
+                _remove_temporaries(out, pending)
     finally:
         bar.close()
+
+
+def _remove_temporaries(out: Path, specs: Iterable[SceneSpec]) -> None:
+    """Delete the temporary folders of these scenes (render_into's), whichever process made them."""
+    for spec in specs:
+        for leftover in out.glob(f"{_TEMP_PREFIX}{spec.name}-*"):
+            if leftover.is_dir() and not leftover.is_symlink():
+                shutil.rmtree(leftover, ignore_errors=True)
 
 
 def _report(results: Iterator[RenderedScene], bar, start: float) -> Iterator[RenderedScene]:
