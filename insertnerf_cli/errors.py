@@ -12,6 +12,10 @@ class UserError(Exception):
     """A mistake in the user's input or environment. The CLI prints it as one line and exits non-zero."""
 
 
+class SceneError(UserError):
+    """A scene folder that cannot be read; the message is one line meant for the user."""
+
+
 # errno -> (what happened to the path, what to do). The path is err.filename when the OS gave one.
 _OS_ADVICE = {
     errno.EACCES: ("permission denied", "check its permissions (or run as a user who may use it)"),

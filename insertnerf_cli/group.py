@@ -2,13 +2,14 @@
 check input -> build config -> call one library function -> print a one-line summary.
 
 The commands (and torch behind them) are imported when click first looks one up, with Ctrl-C held meanwhile
-(see cli.held_interrupts), so `insertnerf --version` is instant and an interrupted start-up exits cleanly.
+(see interrupts.held_interrupts), so `insertnerf --version` is instant and an interrupted start-up exits cleanly.
 """
 from __future__ import annotations
 
 import click
 
 from . import __version__
+from .interrupts import held_interrupts
 
 
 class _Commands(click.Group):
@@ -17,8 +18,6 @@ class _Commands(click.Group):
     def _load(self) -> None:
         if self.commands:
             return
-        from .cli import held_interrupts
-
         with held_interrupts():
             from .commands import COMMANDS
         for command in COMMANDS:

@@ -31,6 +31,7 @@ from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_eval_outputs, check
                       prepare_side_by_sides, side_by_side, write_cameras_json, write_frame, write_png, write_state,
                       write_video)
 from .paths import CameraPath, default_path_kind, make_path
+from .views import held_out_views
 
 DEFAULT_FRAMES = 30
 DEFAULT_FPS = 15.0
@@ -376,16 +377,6 @@ def _render_frames(renderer: _Renderer, path: CameraPath, out_dir: Path, scale: 
 
 
 # ---------------------------------------------------------------------------------------------------- eval
-def held_out_views(scene, max_views: int | None = None) -> list[int]:
-    """The test split when the scene has one, else every 8th view; at most ``max_views``, evenly spread."""
-    test = scene.split("test")
-    if not test or len(test) == len(scene):
-        raise UserError(f"{scene.root}: {len(scene)} views leave no held-out/reference split to evaluate")
-    if max_views is not None and max_views < len(test):
-        test = [test[round(i * (len(test) - 1) / max(max_views - 1, 1))] for i in range(max_views)]
-    return sorted(set(test))
-
-
 def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
     """Render each held-out view from its nearest non-held-out views, score it against the photo, and write the
     side-by-sides and JSON report that ``config`` asks for."""

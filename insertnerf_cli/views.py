@@ -8,13 +8,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterable, Literal, Sequence
+from typing import TYPE_CHECKING, Iterable, Literal, Sequence
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from .cameras import check_shape
+from .errors import UserError
+
+if TYPE_CHECKING:
+    from .scenes import Scene
 
 ViewMethod = Literal["vector", "dist", "matrix"]
 VIEW_METHODS: tuple[str, ...] = ("vector", "dist", "matrix")
@@ -116,6 +120,17 @@ def sample_training_views(rng: np.random.Generator, target_index: int, c2w: Tens
     if views and rng.random() < sampling.keep_target_prob:
         views[int(rng.integers(len(views)))] = target_index
     return views
+
+
+def held_out_views(scene: Scene, max_views: int | None = None) -> list[int]:
+    """The views `eval` scores and `finetune` never uses: the test split when the scene has one, else every 8th
+    view; at most ``max_views``, evenly spread."""
+    test = scene.split("test")
+    if not test or len(test) == len(scene):
+        raise UserError(f"{scene.root}: {len(scene)} views leave no held-out/reference split to evaluate")
+    if max_views is not None and max_views < len(test):
+        test = [test[round(i * (len(test) - 1) / max(max_views - 1, 1))] for i in range(max_views)]
+    return sorted(set(test))
 
 
 def _unit(v: Tensor) -> Tensor:

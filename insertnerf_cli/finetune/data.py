@@ -1,7 +1,7 @@
 """What fine-tuning trains on: one scene's own photos minus the views `insertnerf eval` holds out.
 
 The scene is read, normalised and sized exactly as `render`/`eval` do (training.data.prepare_scene uses
-scenes.normalize_scene and Scene.size_for), and the held-out views are pipeline.held_out_views (the test split,
+scenes.normalize_scene and Scene.size_for), and the held-out views are views.held_out_views (the test split,
 else every 8th view). Those views are removed from the pool the draws pick targets and sources from, so a
 fine-tuned checkpoint never saw them and `eval` on it stays an honest score.
 """
@@ -15,7 +15,7 @@ import torch
 
 from ..errors import UserError
 from ..model import EncodedViews, InsertNeRF, SourceViews
-from ..pipeline import held_out_views
+from ..views import held_out_views
 from ..training.data import ImageCache, TrainScene, ViewDraw, draw_training_views, prepare_scene
 
 # Views encoded at once when the frozen encoder's features are precomputed (bounds peak memory).

@@ -10,26 +10,10 @@ import torch
 from torch import Tensor
 
 from ..cameras import Cameras
-from ..errors import UserError
+from ..errors import SceneError
+from .images import Distortion, read_rgb, resize, undistort
 
 Layout = Literal["object", "forward"]
-
-
-class SceneError(UserError):
-    """A scene folder that cannot be read; the message is one line meant for the user."""
-
-
-@dataclass(frozen=True)
-class Distortion:
-    """Lens distortion of one view, removed when its image is loaded (the pinhole K stays the same).
-
-    Attributes:
-        model: "opencv" (cv2.undistort order k1, k2, p1, p2[, k3[, k4, k5, k6]]) or "fisheye" (k1..k4).
-        coeffs: the coefficients; they act on normalised image coordinates, so they hold at any image size.
-    """
-
-    model: Literal["opencv", "fisheye"]
-    coeffs: tuple[float, ...]
 
 
 @dataclass(frozen=True)
@@ -99,7 +83,6 @@ class Scene:
 
     def load_image(self, index: int, height: int | None = None, width: int | None = None) -> np.ndarray:
         """Image ``index`` as float32 RGB [H, W, 3] in [0, 1], resized to height x width if given."""
-        from .images import read_rgb, resize, undistort
 
         img = read_rgb(self.image_paths[index], self.background)
         if self.distortion is not None and self.distortion[index] is not None:

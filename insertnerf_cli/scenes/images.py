@@ -6,17 +6,31 @@ with Pillow and applied here, so the same photo reads the same way whatever the 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
 
-from ..errors import os_error_message
-from .base import Distortion, SceneError
+from ..errors import SceneError, os_error_message
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 
 _EXIF_ORIENTATION = 0x0112
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """Lens distortion of one view, removed when its image is loaded (the pinhole K stays the same).
+
+    Attributes:
+        model: "opencv" (cv2.undistort order k1, k2, p1, p2[, k3[, k4, k5, k6]]) or "fisheye" (k1..k4).
+        coeffs: the coefficients; they act on normalised image coordinates, so they hold at any image size.
+    """
+
+    model: Literal["opencv", "fisheye"]
+    coeffs: tuple[float, ...]
 
 
 def is_image(path: Path) -> bool:
