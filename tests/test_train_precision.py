@@ -46,3 +46,26 @@ def test_a_compiler_failure_under_compile_is_one_line(dataset, tiny_config, tmp_
     result = CliRunner().invoke(cli, cli_args(dataset, tmp_path / "run", tiny_config, "--steps", "2", "--compile"))
     assert result.exit_code == 1 and "torch.compile failed at step 1" in result.output, result.output
     assert "no python_mod" in result.output and "Traceback" not in result.output
+
+
+def test_compile_runs_the_aggregation_compiled_with_the_same_result(dataset, tiny_config, tmp_path, monkeypatch):  # noqa: F811
+    """--compile compiles the per-scale aggregators (dynamic shapes: training and validation ray counts differ);
+    two steps give the eager run's weights within float tolerance, under the same names."""
+    compiled = []
+    original = torch.nn.Module.compile
+
+    def recording_compile(module, *args, **kwargs):
+        compiled.append((type(module).__name__, kwargs.get("dynamic")))
+        original(module, *args, **kwargs)
+
+    monkeypatch.setattr(torch.nn.Module, "compile", recording_compile)
+    runs = {}
+    for flag in ("--no-compile", "--compile"):
+        run = tmp_path / flag.strip("-")
+        result = CliRunner().invoke(cli, cli_args(dataset, run, tiny_config, "--steps", "2", flag))
+        assert result.exit_code == 0, result.output
+        runs[flag] = _weights(run)
+    assert compiled == [("ScaleAggregator", True)] * 3
+    assert runs["--compile"].keys() == runs["--no-compile"].keys()
+    for name, eager in runs["--no-compile"].items():
+        torch.testing.assert_close(runs["--compile"][name], eager, rtol=1e-4, atol=1e-5, msg=name)

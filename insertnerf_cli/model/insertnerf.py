@@ -35,6 +35,17 @@ class InsertNeRF(nn.Module):
         self.fine_head = NeRFHead(cfg, cond_dims, cfg.samples_fine) if cfg.separate_fine_head else self.coarse_head
         self.register_buffer("background", torch.tensor(cfg.background, dtype=torch.float32), persistent=False)
 
+    def compile_aggregation(self) -> None:
+        """Run the per-scale aggregators through torch.compile, in place (the state dict is unchanged).
+
+        The aggregation is the memory-bound part of a step: element-wise passes over [V, C, P] per-view tensors,
+        which the compiler fuses (bench/train_throughput.py --compile; docs/benchmarks.md, issue 9). Dynamic
+        shapes: one compile serves every ray count (coarse and fine pass, validation). Compiling the whole step
+        instead was slower on the CPU.
+        """
+        for aggregator in self.aggregators:
+            aggregator.compile(dynamic=True)
+
     def encode(self, views: SourceViews) -> EncodedViews:
         """U-Net features of the reference views; in training mode also the backbone reconstruction."""
         param = self.background

@@ -42,7 +42,9 @@ class TrainConfig:
         precision: "fp32", or "bf16" for the training step under bf16 autocast (validation stays float32).
             Float32 by default on every device: bf16 was no faster on the CPU (docs/benchmarks.md, issue 9) and
             is not measured on a GPU yet.
-        compile: run the training objective through torch.compile (not measured to help yet; off by default).
+        compile: compile the model's per-scale aggregators with torch.compile (InsertNeRF.compile_aggregation):
+            1.3x rays/s on the 2-core CPU (docs/benchmarks.md, issue 9); off by default, since compiling takes up
+            to a minute and needs a C++ compiler.
         init: a checkpoint whose weights the run starts from instead of a random initialisation (sample-axis
             tensors resampled when only the sample counts differ: training/warm_start.py); None: random.
     """

@@ -103,9 +103,9 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
                       DrawGenerators(ctx.device, config.seed, ctx.rank))
     if checkpoint is not None:
         _restore(session, checkpoint)
-    session.objective = distributed.wrap(BatchObjective(model), ctx)  # after restoring: DDP broadcasts rank 0
     if config.compile:
-        session.objective = torch.compile(session.objective, dynamic=False)
+        model.compile_aggregation()
+    session.objective = distributed.wrap(BatchObjective(model), ctx)  # after restoring: DDP broadcasts rank 0
     session.stream = StepStream(data, usable, session.generators, config.batch_scenes, config.model.num_views,
                                 config.rays, config.cache_mb * _BYTES_PER_MB)
     if ctx.is_main:
