@@ -334,7 +334,7 @@ def case_train_ctrl_c_during_start_up(w: Workspace) -> Plan:
 @case
 def case_render_ctrl_c_during_work_then_resume(w: Workspace) -> Plan:
     scene, out = w.scene(), w.dir / "out"
-    args = render_args(w.fx, scene, out, "--frames", "30", "--resolution", "64")
+    args = render_args(w.fx, scene, out, "--frames", "200", "--resolution", "64")
     return Plan([Step(args, "interrupt", signal=(INT, "rendering", 1.5)), Step(args, "ok")], inputs=[scene],
                 check=lambda: frames_decodable(out))
 
