@@ -83,7 +83,6 @@ class Scene:
 
     def load_image(self, index: int, height: int | None = None, width: int | None = None) -> np.ndarray:
         """Image ``index`` as float32 RGB [H, W, 3] in [0, 1], resized to height x width if given."""
-
         img = read_rgb(self.image_paths[index], self.background)
         if self.distortion is not None and self.distortion[index] is not None:
             # Undistort at the file's own resolution, where K is the common-size K scaled to the file.
