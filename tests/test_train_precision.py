@@ -48,7 +48,7 @@ def test_a_compiler_failure_under_compile_is_one_line(dataset, tiny_config, tmp_
     assert "no python_mod" in result.output and "Traceback" not in result.output
 
 
-def test_compile_runs_the_aggregation_compiled_with_the_same_result(dataset, tiny_config, tmp_path, monkeypatch):  # noqa: F811
+def test_compile_compiles_the_aggregation_with_the_same_result(dataset, tiny_config, tmp_path, monkeypatch):  # noqa: F811
     """--compile compiles the per-scale aggregators (dynamic shapes: training and validation ray counts differ);
     two steps give the eager run's weights within float tolerance, under the same names."""
     compiled = []
