@@ -22,10 +22,9 @@ import torch
 
 from .atomic import process_alive
 from .cameras import Cameras
-from .errors import UserError
+from .errors import SceneError, UserError
 from .outdir import OutputRecord, check_output as check_output_path, move_into, record_tree
 from .preview import write_camera_frustums, write_point_cloud
-from .scenes.base import SceneError
 from .scenes.images import IMAGE_EXTENSIONS, exif_orientation, find_images, read_rgb
 from .scenes.writers import write_nerfstudio_transforms
 

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 from test_render_cli import make_checkpoint, make_scene, ring_cameras, run
 
-from insertnerf_cli.views import held_out_views
 from insertnerf_cli.scenes import load_scene
-from insertnerf_cli.views import nearest_views
+from insertnerf_cli.views import held_out_views, nearest_views
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")

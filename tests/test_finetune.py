@@ -19,8 +19,8 @@ from test_render_cli import make_checkpoint, make_scene, run
 from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune
 from insertnerf_cli.finetune import loop as finetune_loop
 from insertnerf_cli.finetune.data import draw, finetune_scene
-from insertnerf_cli.views import held_out_views
 from insertnerf_cli.scenes import load_scene, normalize_scene
+from insertnerf_cli.views import held_out_views
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 REPO = Path(__file__).resolve().parents[1]

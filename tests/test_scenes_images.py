@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image, ImageOps
 
-from insertnerf_cli.scenes import SceneError, find_images, read_rgb, resize
+from insertnerf_cli.scenes import Distortion, SceneError, find_images, read_rgb, resize
 from insertnerf_cli.scenes.images import image_size, undistort
-from insertnerf_cli.scenes.base import Distortion
 
 
 def asymmetric_rgb(height: int = 5, width: int = 7) -> np.ndarray:

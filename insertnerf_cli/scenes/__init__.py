@@ -11,9 +11,9 @@ import os
 from pathlib import Path
 from typing import Callable
 
-from ..errors import os_error_message
-from .base import Distortion, Layout, Scene, SceneError
-from .images import IMAGE_EXTENSIONS, find_images, read_rgb, resize
+from ..errors import SceneError, os_error_message
+from .base import Layout, Scene
+from .images import IMAGE_EXTENSIONS, Distortion, find_images, read_rgb, resize
 from .normalize import Similarity, normalize_scene
 from .writers import write_blender_transforms, write_nerfstudio_transforms
 

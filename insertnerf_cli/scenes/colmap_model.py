@@ -14,9 +14,11 @@ import torch
 from torch import Tensor
 
 from ..cameras import Cameras, w2c_to_c2w
-from .base import Distortion, Scene, SceneError
+from ..errors import SceneError
+from .base import Scene
 from .common import ReadViews, assemble, safe_path
 from .geometry import point_depths
+from .images import Distortion
 
 MODEL_DIRS = ("sparse/0", "sparse")
 _UNDISTORT_HINT = ("undistort the model first (`colmap image_undistorter`, or run `insertnerf poses` on the "

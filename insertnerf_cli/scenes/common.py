@@ -14,9 +14,10 @@ import torch
 from torch import Tensor
 
 from ..cameras import Cameras
-from .base import Distortion, Layout, Scene, SceneError
+from ..errors import SceneError
+from .base import Layout, Scene
 from .geometry import bounds_from_depths, bounds_from_geometry, detect_layout
-from .images import image_size
+from .images import Distortion, image_size
 
 # Two sizes share an aspect ratio when rescaling one to the other moves its height by at most this many pixels.
 ASPECT_TOLERANCE_PX = 1.0

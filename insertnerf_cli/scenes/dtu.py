@@ -22,8 +22,8 @@ import numpy as np
 import torch
 
 from ..cameras import w2c_to_c2w
-from ..errors import os_error_message
-from .base import Scene, SceneError
+from ..errors import SceneError, os_error_message
+from .base import Scene
 from .common import ReadViews, assemble, safe_path
 from .images import find_images, image_size
 from .values import matrix, number

@@ -16,10 +16,9 @@ import torch
 from torch import Tensor
 
 from ..cameras import intrinsics, opengl_to_opencv
-from ..errors import os_error_message
-from .base import Distortion, SceneError
+from ..errors import SceneError, os_error_message
 from .common import names_list, safe_path
-from .images import image_size
+from .images import Distortion, image_size
 from .values import matrix, number, objects, text, whole
 
 # nerfstudio's default for depth_unit_scale_factor: 16-bit PNGs in millimetres of a metre-scale scene.

@@ -12,8 +12,8 @@ import numpy as np
 import torch
 
 from ..cameras import intrinsics, llff_to_opencv
-from ..errors import os_error_message
-from .base import Scene, SceneError
+from ..errors import SceneError, os_error_message
+from .base import Scene
 from .common import ReadViews, assemble, safe_path
 from .images import find_images
 

@@ -15,7 +15,8 @@ import torch
 from torch import Tensor
 
 from ..cameras import Cameras
-from .base import Scene, SceneError
+from ..errors import SceneError
+from .base import Scene
 from .common import ReadViews, assemble, safe_path
 from .geometry import point_depths
 from .jsonframes import depth_scale, layout_key, load_json, read_frames

@@ -17,7 +17,8 @@ import torch
 from torch import Tensor
 
 from ..cameras import Cameras, check_shape
-from .base import Scene, SceneError
+from ..errors import SceneError
+from .base import Scene
 from .geometry import focus_point
 
 OBJECT_RADIUS = 4.0
