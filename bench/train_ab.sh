@@ -1,23 +1,32 @@
 #!/bin/bash
-# Same-run A/B of the training step on this CPU (issue 9): the loop of an older tree, the checkout, and the
-# checkout with --compile, 3 rounds in rotating order, each one bench/train_throughput.py process.
+# Same-run A/B of the training step on this CPU (issue 9): the loop of an older tree, the checkout, the
+# checkout with --compile, and the checkout with --compile as two one-thread DDP processes under torchrun (one per
+# core), 3 rounds in rotating order, each one bench/train_throughput.py launch.
 #   git worktree add /tmp/before9 388e38f && bench/train_ab.sh /tmp/before9 [python]
 set -euo pipefail
 BEFORE=${1:?usage: bench/train_ab.sh BEFORE_TREE [PYTHON]}
 PY=${2:-python3}
+CORES=$(nproc)
 NOW=$(cd "$(dirname "$0")/.." && pwd)
 run() {  # label tree [extra args]
   local out
-  out=$(cd /tmp && PYTHONPATH=$2 "$PY" "$2/bench/train_throughput.py" --threads 2 --steps 20 --warmup 5 "${@:3}" 2>&1 \
-        | grep throughput)
+  out=$(cd /tmp && PYTHONPATH=$2 "$PY" "$2/bench/train_throughput.py" --threads "$CORES" --steps 20 --warmup 5 "${@:3}" \
+        2>&1 | grep throughput)
   echo "$(date +%H:%M:%S) load $(cut -d' ' -f1 /proc/loadavg) | $1 | $out"
 }
-for order in "b n c" "n c b" "c b n"; do
+run_ddp() {  # label tree [extra args]: one single-thread process per core
+  local out
+  out=$(cd /tmp && PYTHONPATH=$2 OMP_NUM_THREADS=1 "$PY" -m torch.distributed.run --nproc_per_node "$CORES" \
+        "$2/bench/train_throughput.py" --threads 1 --steps 20 --warmup 5 "${@:3}" 2>&1 | grep throughput)
+  echo "$(date +%H:%M:%S) load $(cut -d' ' -f1 /proc/loadavg) | $1 | $out"
+}
+for order in "b n c d" "n c d b" "c d b n"; do
   for v in $order; do
     case $v in
       b) run "before ($(git -C "$BEFORE" rev-parse --short HEAD))" "$BEFORE";;
       n) run "now" "$NOW";;
       c) run "now --compile" "$NOW" --compile;;
+      d) run_ddp "now --compile, $CORES DDP processes" "$NOW" --compile;;
     esac
   done
 done

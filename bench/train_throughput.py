@@ -5,18 +5,22 @@
     python3 bench/train_throughput.py --dataset data/ --steps 40 --threads 2
     python3 bench/train_throughput.py --batch-scenes 2       # 2 scenes per step, 256 rays each
     python3 bench/train_throughput.py --precision bf16 --compile
+    torchrun --nproc_per_node 2 bench/train_throughput.py --threads 1 --compile   # DDP: one process per core
 
 It runs the real training loop (scene draws on the device, the decoded training set, nearest-view pool, encode,
 both passes, losses, backward, Adam) through ``insertnerf_cli.training.train`` and reads the per-step throughput back from
 metrics.jsonl, skipping warm-up steps. Without --dataset it writes 3 posed scenes of 24 views (Blender format,
 random smooth colours: the content does not change the cost) at the training resolution; --scenes more when
---batch-scenes needs them (a step's scenes are distinct training scenes; one is held out).
+--batch-scenes needs them (a step's scenes are distinct training scenes; one is held out). Under torchrun every
+rank writes the same seeded scenes into its own temporary folder, trains its share under DDP (--rays per rank,
+as `insertnerf train` under torchrun), and rank 0 prints the throughput of all ranks together.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import os
 import resource
 import sys
 import tempfile
@@ -98,15 +102,18 @@ def main() -> None:
         start = time.monotonic()
         train(dataset, Path(tmp) / "run", config, torch.device(args.device))
         wall = time.monotonic() - start
+        if int(os.environ.get("RANK", "0")) != 0:
+            return  # only rank 0 writes the run folder
         lines = [json.loads(line) for line in (Path(tmp) / "run" / "metrics.jsonl").read_text().splitlines()]
+    world = int(os.environ.get("WORLD_SIZE", "1"))
     measured = [m for m in lines if m["split"] == "train" and m["step"] > args.warmup]
-    seconds = sum(config.rays / m["rays_per_s"] for m in measured)
-    rays_per_s = config.rays * len(measured) / seconds
+    seconds = sum(config.rays * world / m["rays_per_s"] for m in measured)  # rays_per_s counts every rank
+    rays_per_s = config.rays * world * len(measured) / seconds
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # ru_maxrss is in KiB on Linux
     print(f"config: {args.conditioning}, {model.samples_coarse}+{model.samples_fine} samples, "
           f"{model.num_views} source views, {config.rays} rays/step over {args.batch_scenes or 'default'} "
           f"scene(s), {args.resolution} px, {args.precision}{', compiled' if args.compile else ''}, "
-          f"{torch.get_num_threads()} torch threads")
+          f"{torch.get_num_threads()} torch threads" + (f" x {world} DDP processes" if world > 1 else ""))
     print(f"parameters: {parameter_counts(model)}")
     print(f"throughput: {rays_per_s:,.0f} rays/s ({seconds / len(measured):.3f} s/step over {len(measured)} steps "
           f"after {args.warmup} warm-up; whole run {wall:.1f} s)")
