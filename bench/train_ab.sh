@@ -1,7 +1,7 @@
 #!/bin/bash
 # Same-run A/B of the training step on this CPU (issue 9): the loop of an older tree, the checkout, the
-# checkout with --compile, and the checkout with --compile as two one-thread DDP processes under torchrun (one per
-# core), 3 rounds in rotating order, each one bench/train_throughput.py launch.
+# checkout with --compile, and the checkout with --compile as one single-thread DDP process per core under
+# torchrun, in float32 and in bf16; 3 rounds in rotating order, each one bench/train_throughput.py launch.
 #   git worktree add /tmp/before9 388e38f && bench/train_ab.sh /tmp/before9 [python]
 set -euo pipefail
 BEFORE=${1:?usage: bench/train_ab.sh BEFORE_TREE [PYTHON]}
@@ -20,13 +20,14 @@ run_ddp() {  # label tree [extra args]: one single-thread process per core
         "$2/bench/train_throughput.py" --threads 1 --steps 20 --warmup 5 "${@:3}" 2>&1 | grep throughput)
   echo "$(date +%H:%M:%S) load $(cut -d' ' -f1 /proc/loadavg) | $1 | $out"
 }
-for order in "b n c d" "n c d b" "c d b n"; do
+for order in "b n c d e" "n c d e b" "c d e b n"; do
   for v in $order; do
     case $v in
       b) run "before ($(git -C "$BEFORE" rev-parse --short HEAD))" "$BEFORE";;
       n) run "now" "$NOW";;
       c) run "now --compile" "$NOW" --compile;;
       d) run_ddp "now --compile, $CORES DDP processes" "$NOW" --compile;;
+      e) run_ddp "now --compile --precision bf16, $CORES DDP processes" "$NOW" --compile --precision bf16;;
     esac
   done
 done

@@ -190,7 +190,7 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-def _ddp_rank(rank: int, dataset: Path, out: Path, port: int, compile: bool) -> None:
+def _ddp_rank(rank: int, dataset: Path, out: Path, port: int, compile: bool, precision: str) -> None:
     from insertnerf_cli.training import distributed
     from insertnerf_cli.training.config import with_device_defaults
     from insertnerf_cli.training.loop import _run
@@ -202,7 +202,8 @@ def _ddp_rank(rank: int, dataset: Path, out: Path, port: int, compile: bool) -> 
     torch.set_num_threads(1)
     ctx = distributed.start(torch.device("cpu"))
     try:
-        config = with_device_defaults(small(steps=2, batch_scenes=2, val_every=1000, compile=compile), ctx.device)
+        config = with_device_defaults(small(steps=2, batch_scenes=2, val_every=1000, compile=compile,
+                                                      precision=precision), ctx.device)
         session = open_session(dataset, RunFiles(out), config, ctx, False, False, lambda _: None)
         _run(session)
         torch.save({"weights": session.model.state_dict(), "draws": session.generators.state()["draw_device"]},
@@ -211,9 +212,10 @@ def _ddp_rank(rank: int, dataset: Path, out: Path, port: int, compile: bool) -> 
         distributed.stop(ctx)
 
 
-@pytest.mark.parametrize("compile", [False, True], ids=["eager", "compiled-aggregation"])
-def test_ddp_with_gloo_on_two_processes_keeps_the_ranks_in_step(dataset, tmp_path, compile):
-    mp.spawn(_ddp_rank, args=(dataset, tmp_path / "run", _free_port(), compile), nprocs=2, join=True)
+@pytest.mark.parametrize("compile, precision", [(False, "fp32"), (True, "fp32"), (True, "bf16")],
+                         ids=["eager", "compiled-aggregation", "compiled-bf16"])  # the last: the fastest CPU setting
+def test_ddp_with_gloo_on_two_processes_keeps_the_ranks_in_step(dataset, tmp_path, compile, precision):
+    mp.spawn(_ddp_rank, args=(dataset, tmp_path / "run", _free_port(), compile, precision), nprocs=2, join=True)
     ranks = [torch.load(tmp_path / f"rank{r}.pt", weights_only=True) for r in range(2)]
     assert all(torch.equal(ranks[0]["weights"][k], ranks[1]["weights"][k]) for k in ranks[0]["weights"])
     assert not torch.equal(ranks[0]["draws"], ranks[1]["draws"])  # each rank its own draws

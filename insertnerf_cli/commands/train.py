@@ -29,9 +29,11 @@ from .common import device_option, overwrite_option, resolve_device, user_errors
               "this size; a larger set is read from disk each step (slower).  [default: 4096]")
 @click.option("--resolution", type=int, help="Long side of the training images in pixels.  [default: 160]")
 @click.option("--precision", type=click.Choice(["fp32", "bf16"]), help="Arithmetic of the training step: bf16 "
-              "runs it under bf16 autocast (validation stays float32).  [default: fp32]")
+              "runs it under bf16 autocast (validation stays float32): 1.25x rays/s per single-thread process on an "
+              "AVX512-BF16 CPU; a CPU without bf16 instructions may be slower (bench/train_throughput.py measures "
+              "it).  [default: fp32]")
 @click.option("--compile/--no-compile", default=None, help="Compile the per-scale aggregation with "
-              "torch.compile: 1.3x rays/s on a 2-core CPU, after up to a minute of compiling; needs a C++ compiler. "
+              "torch.compile: 1.1-1.3x rays/s on a 2-core CPU, after up to a minute of compiling; needs a C++ compiler. "
               " [default: no-compile]")
 @click.option("--lr", type=float, help="Initial learning rate of the NeRF part (the encoder's is twice it by "
               "default).  [default: 5e-4]")
@@ -57,6 +59,11 @@ def train(dataset_dir: Path, run_dir: Path, device: str, resume: bool, overwrite
       insertnerf train data/ --out runs/hyper --minutes 30
       insertnerf train data/ --out runs/hyper --resume --steps 100000
       torchrun --no-python --nproc_per_node 4 insertnerf train data/ --out runs/big --device cuda
+
+    \b
+    Fastest on a CPU: one single-thread process per core (here 2), for a CPU with bf16 units:
+      OMP_NUM_THREADS=1 torchrun --no-python --nproc_per_node 2 insertnerf train data/
+          --out runs/cpu --device cpu --compile --precision bf16
     """
     torch_device = resolve_device(device)
     base = saved_train_config(RunFiles(run_dir).last) if resume else TrainConfig()
