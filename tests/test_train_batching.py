@@ -202,8 +202,8 @@ def _ddp_rank(rank: int, dataset: Path, out: Path, port: int, compile: bool, pre
     torch.set_num_threads(1)
     ctx = distributed.start(torch.device("cpu"))
     try:
-        config = with_device_defaults(small(steps=2, batch_scenes=2, val_every=1000, compile=compile,
-                                                      precision=precision), ctx.device)
+        run = small(steps=2, batch_scenes=2, val_every=1000, compile=compile, precision=precision)
+        config = with_device_defaults(run, ctx.device)
         session = open_session(dataset, RunFiles(out), config, ctx, False, False, lambda _: None)
         _run(session)
         torch.save({"weights": session.model.state_dict(), "draws": session.generators.state()["draw_device"]},

@@ -29,12 +29,12 @@ from .common import device_option, overwrite_option, resolve_device, user_errors
               "this size; a larger set is read from disk each step (slower).  [default: 4096]")
 @click.option("--resolution", type=int, help="Long side of the training images in pixels.  [default: 160]")
 @click.option("--precision", type=click.Choice(["fp32", "bf16"]), help="Arithmetic of the training step: bf16 "
-              "runs it under bf16 autocast (validation stays float32): 1.25x rays/s per single-thread process on an "
-              "AVX512-BF16 CPU; a CPU without bf16 instructions may be slower (bench/train_throughput.py measures "
-              "it).  [default: fp32]")
+              "runs it under bf16 autocast (validation stays float32): 1.2-1.25x rays/s per single-thread process "
+              "on an AVX512-BF16 CPU; a CPU without bf16 instructions may be slower (bench/train_throughput.py "
+              "measures it).  [default: fp32]")
 @click.option("--compile/--no-compile", default=None, help="Compile the per-scale aggregation with "
-              "torch.compile: 1.1-1.3x rays/s on a 2-core CPU, after up to a minute of compiling; needs a C++ compiler. "
-              " [default: no-compile]")
+              "torch.compile: 1.1-1.3x rays/s on a 2-core CPU, after up to a minute of compiling; needs a C++ "
+              "compiler.  [default: no-compile]")
 @click.option("--lr", type=float, help="Initial learning rate of the NeRF part (the encoder's is twice it by "
               "default).  [default: 5e-4]")
 @click.option("--val-every", type=int, help="Steps between validations.  [default: 500]")
