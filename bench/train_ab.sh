@@ -8,26 +8,26 @@ BEFORE=${1:?usage: bench/train_ab.sh BEFORE_TREE [PYTHON]}
 PY=${2:-python3}
 CORES=$(nproc)
 NOW=$(cd "$(dirname "$0")/.." && pwd)
-run() {  # label tree [extra args]
+bench() {  # label threads launcher... (ending in a tree's bench/train_throughput.py) [extra args]
   local out
-  out=$(cd /tmp && PYTHONPATH=$2 "$PY" "$2/bench/train_throughput.py" --threads "$CORES" --steps 20 --warmup 5 "${@:3}" \
-        2>&1 | grep throughput)
+  out=$(cd /tmp && "${@:3}" --threads "$2" --steps 20 --warmup 5 2>&1 | grep throughput)
   echo "$(date +%H:%M:%S) load $(cut -d' ' -f1 /proc/loadavg) | $1 | $out"
 }
-run_ddp() {  # label tree [extra args]: one single-thread process per core
-  local out
-  out=$(cd /tmp && PYTHONPATH=$2 OMP_NUM_THREADS=1 "$PY" -m torch.distributed.run --nproc_per_node "$CORES" \
-        "$2/bench/train_throughput.py" --threads 1 --steps 20 --warmup 5 "${@:3}" 2>&1 | grep throughput)
-  echo "$(date +%H:%M:%S) load $(cut -d' ' -f1 /proc/loadavg) | $1 | $out"
+one() {  # label tree [extra args]: one process with a thread per core
+  bench "$1" "$CORES" env PYTHONPATH="$2" "$PY" "$2/bench/train_throughput.py" "${@:3}"
+}
+ddp() {  # label tree [extra args]: one single-thread DDP process per core
+  bench "$1" 1 env PYTHONPATH="$2" OMP_NUM_THREADS=1 "$PY" -m torch.distributed.run --nproc_per_node "$CORES" \
+    "$2/bench/train_throughput.py" "${@:3}"
 }
 for order in "b n c d e" "n c d e b" "c d e b n"; do
   for v in $order; do
     case $v in
-      b) run "before ($(git -C "$BEFORE" rev-parse --short HEAD))" "$BEFORE";;
-      n) run "now" "$NOW";;
-      c) run "now --compile" "$NOW" --compile;;
-      d) run_ddp "now --compile, $CORES DDP processes" "$NOW" --compile;;
-      e) run_ddp "now --compile --precision bf16, $CORES DDP processes" "$NOW" --compile --precision bf16;;
+      b) one "before ($(git -C "$BEFORE" rev-parse --short HEAD))" "$BEFORE";;
+      n) one "now" "$NOW";;
+      c) one "now --compile" "$NOW" --compile;;
+      d) ddp "now --compile, $CORES DDP processes" "$NOW" --compile;;
+      e) ddp "now --compile --precision bf16, $CORES DDP processes" "$NOW" --compile --precision bf16;;
     esac
   done
 done

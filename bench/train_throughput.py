@@ -100,9 +100,9 @@ def main() -> None:
         if args.dataset is None:
             write_dataset(dataset, args.resolution, scenes=args.scenes, views=24)
         start = time.monotonic()
-        train(dataset, Path(tmp) / "run", config, torch.device(args.device))
+        result = train(dataset, Path(tmp) / "run", config, torch.device(args.device))
         wall = time.monotonic() - start
-        if int(os.environ.get("RANK", "0")) != 0:
+        if not result.main_process:
             return  # only rank 0 writes the run folder
         lines = [json.loads(line) for line in (Path(tmp) / "run" / "metrics.jsonl").read_text().splitlines()]
     world = int(os.environ.get("WORLD_SIZE", "1"))
