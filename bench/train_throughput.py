@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import resource
 import sys
 import tempfile
@@ -105,7 +104,7 @@ def main() -> None:
         if not result.main_process:
             return  # only rank 0 writes the run folder
         lines = [json.loads(line) for line in (Path(tmp) / "run" / "metrics.jsonl").read_text().splitlines()]
-    world = int(os.environ.get("WORLD_SIZE", "1"))
+    world = result.processes
     measured = [m for m in lines if m["split"] == "train" and m["step"] > args.warmup]
     seconds = sum(config.rays * world / m["rays_per_s"] for m in measured)  # rays_per_s counts every rank
     rays_per_s = config.rays * world * len(measured) / seconds

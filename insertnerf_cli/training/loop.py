@@ -38,6 +38,7 @@ class TrainResult:
         best_val_psnr: best validation of the run (None when nothing was validated).
         rays_per_s: training throughput of this session (all ranks together).
         main_process: False on the other ranks of a torchrun launch (they should stay quiet).
+        processes: the launch's processes (torchrun's world size; 1 without torchrun).
     """
 
     run_dir: Path
@@ -51,6 +52,7 @@ class TrainResult:
     best_val_psnr: float | None
     rays_per_s: float | None
     main_process: bool = True
+    processes: int = 1
 
 
 class _Meter:
@@ -192,7 +194,8 @@ def _run(s: Session) -> TrainResult:
         s.say(f"the run has used its --minutes {cfg.minutes} budget; pass a larger --minutes to go on.")
     return TrainResult(s.files.root, s.files.last, s.step, s.step - s.start_step, elapsed, reason,
                        last["train_psnr"], last["val_psnr"], s.best_val_psnr,
-                       session_rays / session_seconds if session_seconds > 0 else None, s.ctx.is_main)
+                       session_rays / session_seconds if session_seconds > 0 else None, s.ctx.is_main,
+                       s.ctx.world_size)
 
 
 def _stop_reason(s: Session, elapsed: float, interrupted: bool) -> str | None:
