@@ -29,7 +29,7 @@ from .common import device_option, overwrite_option, resolve_device, user_errors
               "this size; a larger set is read from disk each step (slower).  [default: 4096]")
 @click.option("--resolution", type=int, help="Long side of the training images in pixels.  [default: 160]")
 @click.option("--precision", type=click.Choice(["fp32", "bf16"]), help="Arithmetic of the training step: bf16 "
-              "runs it under bf16 autocast (validation stays float32): 1.2-1.25x rays/s per single-thread process "
+              "runs it under bf16 autocast (validation stays float32): 1.18-1.26x rays/s per single-thread process "
               "on an AVX512-BF16 CPU; a CPU without bf16 instructions may be slower (bench/train_throughput.py "
               "measures it).  [default: fp32]")
 @click.option("--compile/--no-compile", default=None, help="Compile the per-scale aggregation with "
