@@ -2,6 +2,7 @@
 
     python3 bench/finetune_eval.py /work/shared/realdata/beer /work/shared/realdata/mold_gold_cape --work /tmp/ft
     python3 bench/finetune_eval.py SCENE --minutes 2 --snapshots "" --max-views 5 --rays 128   # a quick probe
+    python3 bench/finetune_eval.py SCENE --minutes 5 --snapshots 2 --device cuda               # on a GPU
 
 Per scene: one fine-tune of --minutes that also saves snapshot checkpoints when its optimisation time first
 passes each of --snapshots minutes (the learning rate is constant, so a snapshot at 2 minutes is what a 2-minute
@@ -23,6 +24,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from insertnerf_cli.commands.common import resolve_device  # noqa: E402
+from insertnerf_cli.errors import UserError  # noqa: E402
 from insertnerf_cli.checkpoint import bundled_checkpoint, load_model, save_checkpoint  # noqa: E402
 from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune  # noqa: E402
 from insertnerf_cli.finetune.data import finetune_scene  # noqa: E402
@@ -44,17 +47,17 @@ def snapshot_hook(marks: list[float], path_for) -> callable:
 
 
 @torch.no_grad()
-def quick_score(scene_dir: Path, checkpoint: Path | None, pixels: int) -> dict:
+def quick_score(scene_dir: Path, checkpoint: Path | None, pixels: int, device: torch.device) -> dict:
     """Mean PSNR over eval's held-out views, each rendered from its 10 nearest usable views as eval does, but on
     ``pixels`` fixed random pixels per view instead of the whole image (a cheap probe for choosing settings)."""
     scene = finetune_scene(scene_dir, DEFAULT_RESOLUTION)
-    model = load_model(checkpoint or bundled_checkpoint(), torch.device("cpu"))[0]
+    model = load_model(checkpoint or bundled_checkpoint(), device)[0]
     cache, rng, psnrs = ImageCache(1 << 30), np.random.default_rng(123), []
     usable = list(scene.train_ids)
     for target in scene.test_ids:
         near = nearest_views(scene.cameras.c2w[target], scene.cameras.c2w[usable], DEFAULT_VIEWS, scene.method)
         chosen = torch.from_numpy(rng.integers(0, scene.cameras.height * scene.cameras.width, size=pixels))
-        batch = make_batch(scene, cache, ViewDraw(0, target, tuple(usable[i] for i in near), chosen))
+        batch = make_batch(scene, cache, ViewDraw(0, target, tuple(usable[i] for i in near), chosen)).to(device)
         encoded = model.encode(batch.views)
         rgb = torch.cat([model.render(encoded, batch.rays[i:i + 256]).rgb for i in range(0, pixels, 256)])
         psnrs.append(-10.0 * math.log10(float(((rgb - batch.target_rgb) ** 2).mean())))
@@ -63,8 +66,9 @@ def quick_score(scene_dir: Path, checkpoint: Path | None, pixels: int) -> dict:
 
 def score(scene: Path, checkpoint: Path | None, args: argparse.Namespace) -> dict:
     if args.quick:
-        return quick_score(scene, checkpoint, args.quick)
-    report = evaluate_scene(scene, EvalConfig(checkpoint=checkpoint, max_views=args.max_views, device="cpu"))
+        return quick_score(scene, checkpoint, args.quick, args.torch_device)
+    report = evaluate_scene(scene, EvalConfig(checkpoint=checkpoint, max_views=args.max_views,
+                                                  device=args.torch_device.type))
     return {"psnr": report.psnr, "ssim": report.ssim, "views": len(report.views)}
 
 
@@ -82,7 +86,7 @@ def fine_tune(scene: Path, args: argparse.Namespace, marks: list[float], path_fo
                 steps_at[m] = progress.step
         hook(progress)
 
-    result = finetune(scene, path_for(args.minutes), config, torch.device("cpu"), base=args.base, overwrite=True,
+    result = finetune(scene, path_for(args.minutes), config, args.torch_device, base=args.base, overwrite=True,
                       on_step=on_step)
     return {"steps_at": {str(m): s for m, s in {**steps_at, args.minutes: result.steps}.items()},
             "steps_per_minute": result.steps_per_minute, "load_before": load_before, "load_after": os.getloadavg(),
@@ -124,9 +128,15 @@ def main() -> None:
     parser.add_argument("--skip-before", action="store_true", help="do not score the base weights")
     parser.add_argument("--score", help="comma-separated minutes to score (0 = the base weights) [default: all]")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared 2-core machine)")
+    parser.add_argument("--device", default="cpu", choices=["auto", "cpu", "cuda"],
+                        help="where to fine-tune and score (the command's --device)")
     parser.add_argument("--tag", default="", help="suffix of the checkpoint names")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    try:
+        args.torch_device = resolve_device(args.device)
+    except UserError as error:
+        parser.error(str(error))
     args.work.mkdir(parents=True, exist_ok=True)
     rows = [row for scene in args.scenes for row in run_scene(scene, args, args.work)]
     print(f"{'scene':<16}{'minutes':>8}{'steps':>7}{'PSNR':>8}{'dPSNR':>7}{'SSIM':>8}  steps/min  load before->after"
