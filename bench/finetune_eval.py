@@ -67,8 +67,8 @@ def quick_score(scene_dir: Path, checkpoint: Path | None, pixels: int, device: t
 def score(scene: Path, checkpoint: Path | None, args: argparse.Namespace) -> dict:
     if args.quick:
         return quick_score(scene, checkpoint, args.quick, args.torch_device)
-    report = evaluate_scene(scene, EvalConfig(checkpoint=checkpoint, max_views=args.max_views,
-                                                  device=args.torch_device.type))
+    config = EvalConfig(checkpoint=checkpoint, max_views=args.max_views, device=args.torch_device.type)
+    report = evaluate_scene(scene, config)
     return {"psnr": report.psnr, "ssim": report.ssim, "views": len(report.views)}
 
 
