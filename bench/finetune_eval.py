@@ -24,9 +24,9 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from insertnerf_cli.checkpoint import bundled_checkpoint, load_model, save_checkpoint  # noqa: E402
 from insertnerf_cli.commands.common import resolve_device  # noqa: E402
 from insertnerf_cli.errors import UserError  # noqa: E402
-from insertnerf_cli.checkpoint import bundled_checkpoint, load_model, save_checkpoint  # noqa: E402
 from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune  # noqa: E402
 from insertnerf_cli.finetune.data import finetune_scene  # noqa: E402
 from insertnerf_cli.pipeline import DEFAULT_RESOLUTION, DEFAULT_VIEWS, EvalConfig, evaluate_scene  # noqa: E402
