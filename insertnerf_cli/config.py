@@ -58,9 +58,15 @@ class ModelConfig:
     density_bias: float = -1.0  # added before the activation so an untrained field starts mostly empty
     blend_reference_colour: bool = True  # mix the network colour with the dynamic-weight blend of reference colours
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    # What a ray sees past its far bound: the reference views' colours where they see the ray's direction at
+    # infinity, aggregated like any sample (issue 27); ``background`` then only fills rays no view sees there.
+    infinity_sample: bool = False
     # --- loss weights (method.md section 3)
     loss_backbone_weight: float = 0.1
     loss_dynamic_weight: float = 1.0
+    # geometry supervision (model/geometry_losses.py): exact synthetic depth and mip-NeRF 360's distortion
+    loss_depth_weight: float = 0.0
+    loss_distortion_weight: float = 0.0
 
     def __post_init__(self) -> None:
         check_field_types(self)  # also the choices of the Literal fields and finite floats
@@ -69,7 +75,8 @@ class ModelConfig:
         _at_least(self, 1, "encoder_widths", "feature_dims", "backbone_decoder_width", "aggregate_hidden",
                   "nerf_width", "nerf_layers", "appearance_width", "z_branches", "film_hidden", "filter_nodes",
                   "samples_coarse", "samples_fine", "num_views")
-        _at_least(self, 0, "pe_freqs_pos", "pe_freqs_dir", "loss_backbone_weight", "loss_dynamic_weight")
+        _at_least(self, 0, "pe_freqs_pos", "pe_freqs_dir", "loss_backbone_weight", "loss_dynamic_weight",
+                  "loss_depth_weight", "loss_distortion_weight")
         if self.coord_scale <= 0 or not all(0.0 <= c <= 1.0 for c in self.background):
             raise ValueError(f"coord_scale must be positive and background colours in [0, 1], got "
                              f"coord_scale={self.coord_scale}, background={self.background}")

@@ -142,8 +142,10 @@ def _render_with_shortcuts(model: "InsertNeRF", encoded: "EncodedViews", rays: R
         return run
 
     # [R, 5]: rgb, depth, opacity; what compositing gives a ray that sees nothing until a fine pass fills it
-    out = torch.cat([model.background.to(weights).expand(len(rays), 3), t.mean().expand(len(rays), 1),
-                     weights.new_zeros(len(rays), 1)], dim=-1)
+    backdrop = model.background.to(weights).expand(len(rays), 3)
+    if model.config.infinity_sample:  # an empty pixel shows what the reference views see at infinity
+        backdrop = torch.cat(chunked(lambda i: model.backdrop(encoded, rays[i]), len(rays)))
+    out = torch.cat([backdrop, t.mean().expand(len(rays), 1), weights.new_zeros(len(rays), 1)], dim=-1)
 
     def fill(rows: Tensor) -> None:
         outs = chunked(fine(rows), len(rows))

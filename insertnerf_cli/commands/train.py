@@ -22,7 +22,10 @@ from .common import device_option, overwrite_option, resolve_device, user_errors
 @click.option("--conditioning", type=click.Choice(["hyper", "concat"]),
               help="HyperNet modules (InsertNeRF) or plain feature concatenation (the ablation).  [default: hyper]")
 @click.option("--rays", type=int, help="Rays per step, over all its scenes.  [default: 512]")
-@click.option("--views", type=int, help="Source views per scene of a step.  [default: 8]")
+@click.option("--views", type=int, help="Source views per scene of a step (the most, with --views-min).  "
+              "[default: 8]")
+@click.option("--views-min", type=int, help="Draw each step's number of source views from VIEWS_MIN..--views, so "
+              "the model serves any count `render --views` asks for (e.g. --views-min 4 --views 16).")
 @click.option("--batch-scenes", type=int, help="Scenes per step, each with --rays / B rays and its own source "
               "views (one batch).  [default: 1 on CPU, 4 on CUDA]")
 @click.option("--data-budget-mb", type=int, help="Keep the decoded training images on the training device up to "

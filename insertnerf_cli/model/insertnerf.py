@@ -15,6 +15,9 @@ from .nerf import NeRFHead
 from .projection import project_samples, projection_matrices
 from .types import EncodedViews, LossTerms, RenderOutput, SampleFeatures, SourceViews
 
+# The infinity sample's depth in units of the ray's far bound (InsertNeRF.backdrop).
+_INFINITY_FACTOR = 1e4
+
 
 class InsertNeRF(nn.Module):
     """The generator: reference views + query rays -> colour, depth and opacity of both passes."""
@@ -63,13 +66,28 @@ class InsertNeRF(nn.Module):
         """Render R rays: stratified coarse pass, then an importance-sampled fine pass."""
         cfg = self.config
         rays = rays.to(device=self.background.device, dtype=self.background.dtype)
+        backdrop = self.backdrop(encoded, rays)  # [R, 3] what the ray sees past its far bound
         coarse_samples = stratified_samples(rays, cfg.samples_coarse, jitter=train,
                                             in_disparity=cfg.sample_in_disparity)
-        coarse, dynamic_coarse = self.render_pass(self.coarse_head, encoded, rays, coarse_samples)
+        coarse, dynamic_coarse = self.render_pass(self.coarse_head, encoded, rays, coarse_samples, backdrop)
         fine_samples = importance_samples(coarse_samples, coarse.weights, cfg.samples_fine, jitter=train,
                                           near=rays.near, far=rays.far)
-        fine, dynamic_fine = self.render_pass(self.fine_head, encoded, rays, fine_samples)
-        return RenderOutput(coarse=coarse, fine=fine, dynamic_coarse=dynamic_coarse, dynamic_fine=dynamic_fine)
+        fine, dynamic_fine = self.render_pass(self.fine_head, encoded, rays, fine_samples, backdrop)
+        return RenderOutput(coarse=coarse, fine=fine, dynamic_coarse=dynamic_coarse, dynamic_fine=dynamic_fine,
+                            coarse_samples=coarse_samples, fine_samples=fine_samples)
+
+    def backdrop(self, encoded: EncodedViews, rays: Rays) -> Tensor:
+        """[R, 3] the colour behind everything a ray's samples hold: with ``infinity_sample`` a sample at infinity
+        (the ray's direction, which every reference view sees at its vanishing point, aggregated like any
+        sample); else, and for rays no view sees there, the fixed background colour."""
+        fixed = self.background.to(rays.directions).expand(len(rays), 3)
+        if not self.config.infinity_sample:
+            return fixed
+        # Far enough that the projection is the vanishing point to well under a pixel, near enough for float32.
+        t = (rays.far * _INFINITY_FACTOR)[:, None]  # [R, 1]
+        seen = self.observe(encoded, rays, RaySamples(t, torch.cat([t, t], dim=-1)))
+        coverage = seen.dynamic.sum(dim=0)[0]  # [R]: 1 where some view sees the direction, else 0
+        return seen.reference_colour()[:, 0] + (1.0 - coverage)[:, None] * fixed
 
     def render(self, encoded: EncodedViews, rays: Rays) -> Composite:
         """Inference: the fine composite of R rays, the same as ``forward(..., train=False).fine``."""
@@ -98,18 +116,19 @@ class InsertNeRF(nn.Module):
         fine_samples = importance_samples(coarse_samples, weights, cfg.samples_fine, jitter=False,
                                           near=rays.near, far=rays.far)
         fine = self.observe(encoded, rays, fine_samples)
-        return self.shade(self.fine_head, fine, rays, fine_samples, fine.reference_colour())
+        return self.shade(self.fine_head, fine, rays, fine_samples, fine.reference_colour(),
+                          self.backdrop(encoded, rays))
 
-    def render_pass(self, head: NeRFHead, encoded: EncodedViews, rays: Rays,
-                    samples: RaySamples) -> tuple[Composite, Tensor]:
+    def render_pass(self, head: NeRFHead, encoded: EncodedViews, rays: Rays, samples: RaySamples,
+                    backdrop: Tensor) -> tuple[Composite, Tensor]:
         """sample -> project -> aggregate -> hypernet + nerf -> composite, for one set of samples.
 
         Returns the composite and the dynamic-weight colour [R, 3] composited with the detached weights.
         """
         seen = self.observe(encoded, rays, samples)
         reference = seen.reference_colour()  # [R, S, 3]
-        main = self.shade(head, seen, rays, samples, reference)
-        return main, composite(main.weights.detach(), reference, samples.t, self.background).rgb
+        main = self.shade(head, seen, rays, samples, reference, backdrop)
+        return main, composite(main.weights.detach(), reference, samples.t, backdrop).rgb
 
     def observe(self, encoded: EncodedViews, rays: Rays, samples: RaySamples) -> SampleFeatures:
         """Project the samples into every reference view and aggregate what the views see, per scale."""
@@ -122,15 +141,17 @@ class InsertNeRF(nn.Module):
                               dynamic=torch.stack(dynamics).mean(dim=0), colours=seen.colours)
 
     def shade(self, head: NeRFHead, seen: SampleFeatures, rays: Rays, samples: RaySamples,
-              reference: Tensor) -> Composite:
-        """The conditioned field at the samples, blended with the reference colour [R, S, 3], composited."""
+              reference: Tensor, backdrop: Tensor) -> Composite:
+        """The conditioned field at the samples, blended with the reference colour [R, S, 3], composited over
+        ``backdrop`` [R, 3]."""
         field = head(seen.points, rays.directions, seen.conds)
         colour = field.colour
         if self.config.blend_reference_colour:
             colour = field.blend * colour + (1.0 - field.blend) * reference  # [R, S, 3]
         weights = composite_weights(field.density, samples.edges, rays.directions.norm(dim=-1))
-        return composite(weights, colour, samples.t, self.background)
+        return composite(weights, colour, samples.t, backdrop)
 
-    def losses(self, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews) -> LossTerms:
-        """Colour MSE on both passes + weighted backbone and dynamic-weight losses (see losses.py)."""
-        return compute_losses(self.config, output, target_rgb, encoded)
+    def losses(self, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews, rays: Rays | None = None,
+               target_depth: Tensor | None = None) -> LossTerms:
+        """Colour MSE on both passes + weighted backbone, dynamic-weight and geometry losses (see losses.py)."""
+        return compute_losses(self.config, output, target_rgb, encoded, rays, target_depth)

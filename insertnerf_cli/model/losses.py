@@ -1,5 +1,6 @@
 """The training objective (paper section 3.4, method.md sections 3 and 7):
-colour MSE on both passes + w_b * backbone reconstruction MSE + w_dy * dynamic-weight colour MSE."""
+colour MSE on both passes + w_b * backbone reconstruction MSE + w_dy * dynamic-weight colour MSE, and the geometry
+terms of issue 27 (geometry_losses.py): w_depth * depth + w_dist * distortion, each the mean of both passes."""
 from __future__ import annotations
 
 import torch
@@ -9,15 +10,20 @@ from torch import Tensor
 from ..cameras import check_shape
 from ..config import ModelConfig
 from ..compositing import psnr
+from ..rays import Rays
+from .geometry_losses import depth_loss, distortion_loss
 from .types import EncodedViews, LossTerms, RenderOutput
 
 
-def compute_losses(cfg: ModelConfig, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews) -> LossTerms:
+def compute_losses(cfg: ModelConfig, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews,
+                   rays: Rays | None = None, target_depth: Tensor | None = None) -> LossTerms:
     """LossTerms for R rays with ground-truth colours target_rgb [R, 3] (composited on the same background).
 
     The backbone term needs ``encoded.reconstruction`` (present when encoded in training mode); without it the
     term is 0. The dynamic term composites the dynamic-weight colour blend with the passes' detached weights, so it
     trains the dynamic weights to pick the views that see the surface without moving the geometry.
+    ``target_depth`` [R] (NaN = unknown, 0 = no surface) feeds the depth term; ``rays`` (their bounds) the
+    distortion term. Either missing makes its term 0.
     """
     check_shape("target_rgb", target_rgb, (output.fine.rgb.shape[0], 3))
     mse_coarse = F.mse_loss(output.coarse.rgb, target_rgb)
@@ -27,6 +33,17 @@ def compute_losses(cfg: ModelConfig, output: RenderOutput, target_rgb: Tensor, e
         backbone = F.mse_loss(encoded.reconstruction, encoded.source_images())
     else:
         backbone = torch.zeros((), dtype=target_rgb.dtype, device=target_rgb.device)
-    total = (mse_coarse + mse_fine + cfg.loss_backbone_weight * backbone + cfg.loss_dynamic_weight * dynamic)
+    zero = torch.zeros((), dtype=target_rgb.dtype, device=target_rgb.device)
+    passes = ((output.coarse.weights, output.coarse_samples), (output.fine.weights, output.fine_samples))
+    depth = zero
+    if target_depth is not None and cfg.loss_depth_weight > 0:
+        depth = sum(depth_loss(w, s.edges, target_depth) for w, s in passes) / len(passes)
+    distortion = zero
+    if rays is not None and cfg.loss_distortion_weight > 0:
+        distortion = sum(distortion_loss(w, s.edges, rays.near, rays.far, cfg.sample_in_disparity)
+                         for w, s in passes) / len(passes)
+    total = (mse_coarse + mse_fine + cfg.loss_backbone_weight * backbone + cfg.loss_dynamic_weight * dynamic
+             + cfg.loss_depth_weight * depth + cfg.loss_distortion_weight * distortion)
     return LossTerms(total=total, mse_coarse=mse_coarse.detach(), mse_fine=mse_fine.detach(),
-                     backbone=backbone.detach(), dynamic=dynamic.detach(), psnr_fine=psnr(mse_fine.detach()))
+                     backbone=backbone.detach(), dynamic=dynamic.detach(), psnr_fine=psnr(mse_fine.detach()),
+                     depth=depth.detach(), distortion=distortion.detach())

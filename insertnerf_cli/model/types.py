@@ -9,6 +9,7 @@ from torch import Tensor
 
 from ..cameras import Cameras, check_shape
 from ..compositing import Composite
+from ..sampling import RaySamples
 
 
 @dataclass(frozen=True)
@@ -115,17 +116,23 @@ class RenderOutput:
         coarse, fine: composites of the stratified and the importance-sampled pass.
         dynamic_coarse, dynamic_fine: [R, 3] the reference colours blended by the dynamic weights and composited
             with the pass's (detached) weights, supervised by the dynamic-weight loss.
+        coarse_samples, fine_samples: the samples (depths and bins) of each pass, for the geometry losses.
     """
 
     coarse: Composite
     fine: Composite
     dynamic_coarse: Tensor  # [R, 3]
     dynamic_fine: Tensor  # [R, 3]
+    coarse_samples: RaySamples
+    fine_samples: RaySamples
 
 
 @dataclass(frozen=True)
 class LossTerms:
-    """The training objective and its parts (each a scalar tensor; only ``total`` carries gradients to use)."""
+    """The training objective and its parts (each a scalar tensor; only ``total`` carries gradients to use).
+
+    ``depth`` and ``distortion`` are the geometry terms of both passes (0 when their weights are 0 or, for depth,
+    when no ray of the batch has a known depth)."""
 
     total: Tensor
     mse_coarse: Tensor
@@ -133,3 +140,5 @@ class LossTerms:
     backbone: Tensor
     dynamic: Tensor
     psnr_fine: Tensor
+    depth: Tensor
+    distortion: Tensor

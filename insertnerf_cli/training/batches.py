@@ -7,7 +7,7 @@ trip; a second generator on the host picks the image-size group (only when the s
 from __future__ import annotations
 
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from functools import lru_cache
 
 import numpy as np
@@ -21,7 +21,7 @@ from ..model.types import EncodedViews
 from ..rays import Rays, rays_from_pixels
 from ..views import ViewSampling
 from .data import ImageCache, TrainBatch
-from .device_data import SizeGroup, TrainingSet, gather_images
+from .device_data import SizeGroup, TrainingSet, gather_depths, gather_images
 
 _LEVELS = 255.0
 _SEED_LIMIT = 1 << 63
@@ -129,7 +129,8 @@ def make_step_batch(data: TrainingSet, draw: StepDraw, cache: ImageCache) -> Tra
     t, s = draw.targets, draw.sources.reshape(-1)
     rays = rays_from_pixels(Cameras(g.K[t], g.c2w[t], g.height, g.width), uv, g.near[t], g.far[t])
     views = SourceViews(sources, Cameras(g.K[s], g.c2w[s], g.height, g.width))
-    return TrainBatch(views, rays, target_rgb.reshape(batch * per_scene, 3))
+    depth = gather_depths(data, g, t, draw.pixels).reshape(-1) if data.with_depth else None  # [B * R / B]
+    return TrainBatch(views, rays, target_rgb.reshape(batch * per_scene, 3), depth)
 
 
 def encoded_group(encoded: EncodedViews, index: int, size: int) -> EncodedViews:
@@ -149,7 +150,9 @@ class BatchObjective(nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, views: SourceViews, rays: Rays, target_rgb: Tensor, scenes: int) -> LossTerms:
+    def forward(self, views: SourceViews, rays: Rays, target_rgb: Tensor, scenes: int,
+                target_depth: Tensor | None = None) -> LossTerms:
+        """Loss terms of B = ``scenes`` scenes; ``target_depth`` [R] true depths (None: no depth term)."""
         encoded = self.model.encode(views)
         per_view, per_ray = len(views) // scenes, len(rays) // scenes
         terms = []
@@ -157,18 +160,21 @@ class BatchObjective(nn.Module):
             part = encoded_group(encoded, b, per_view)
             chunk = slice(b * per_ray, (b + 1) * per_ray)
             output = self.model(part, rays[chunk], train=True)
-            terms.append(self.model.losses(output, target_rgb[chunk], part))
+            depth = None if target_depth is None else target_depth[chunk]
+            terms.append(self.model.losses(output, target_rgb[chunk], part, rays[chunk], depth))
         if scenes == 1:
             return terms[0]
-        return LossTerms(*(torch.stack(column).mean() for column in zip(*(_values(t) for t in terms))))
+        return LossTerms(*(torch.stack(column).mean() for column in zip(*(astuple_shallow(t) for t in terms))))
 
 
-def _values(terms: LossTerms) -> tuple[Tensor, ...]:
-    return (terms.total, terms.mse_coarse, terms.mse_fine, terms.backbone, terms.dynamic, terms.psnr_fine)
+def astuple_shallow(terms: LossTerms) -> tuple[Tensor, ...]:
+    """The loss terms in field order (dataclasses.astuple would deep-copy the tensors)."""
+    return tuple(getattr(terms, f.name) for f in fields(terms))
 
 
 class StepStream:
-    """The steps' draws and batches, in order.
+    """The steps' draws and batches, in order; with ``views_min`` each step draws its number of source views
+    uniformly from views_min..num_views (on the host generator, so --resume draws the same).
 
     With the images on the device a step is drawn and gathered when asked for. Streamed from disk, the next
     step is drawn one step ahead and its images read on a worker thread (into the stream's own ImageCache)
@@ -177,9 +183,10 @@ class StepStream:
     """
 
     def __init__(self, data: TrainingSet, usable: list[int], generators: DrawGenerators, batch_scenes: int,
-                 num_views: int, rays: int, cache_bytes: int) -> None:
+                 num_views: int, rays: int, cache_bytes: int, views_min: int | None = None) -> None:
         self.data, self.usable, self.generators = data, usable, generators
         self.shape = (batch_scenes, num_views, rays)
+        self.views_min = views_min
         self._cache = ImageCache(cache_bytes)
         self._pool = None if data.resident else ThreadPoolExecutor(max_workers=1)
         self._pending: tuple[dict[str, Tensor], StepDraw, Future] | None = None
@@ -204,6 +211,8 @@ class StepStream:
 
     def _draw(self) -> StepDraw:
         batch_scenes, num_views, rays = self.shape
+        if self.views_min is not None:  # a count per step, so that any count a user asks for was seen in training
+            num_views = int(torch.randint(self.views_min, num_views + 1, (1,), generator=self.generators.host))
         return draw_step(self.data, self.usable, self.generators, batch_scenes, num_views, rays)
 
     def _prefetch(self) -> tuple[dict[str, Tensor], StepDraw, Future]:

@@ -18,7 +18,8 @@ _SEED_LIMIT = 2 ** 63  # torch.manual_seed takes a signed 64-bit integer
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """A training run. The number of source views per step is ``model.num_views``.
+    """A training run. The number of source views per step is ``model.num_views``, or with ``views_min`` drawn
+    per step from views_min..model.num_views.
 
     Attributes:
         model: the generator's config (stored in every checkpoint).
@@ -45,6 +46,8 @@ class TrainConfig:
         compile: compile the model's per-scale aggregators with torch.compile (InsertNeRF.compile_aggregation):
             1.3x rays/s on the 2-core CPU (docs/benchmarks.md, issue 9); off by default, since compiling takes up
             to a minute and needs a C++ compiler.
+        views_min: the fewest source views a step draws (None: always model.num_views). Validation uses
+            model.num_views.
         init: a checkpoint whose weights the run starts from instead of a random initialisation (sample-axis
             tensors resampled when only the sample counts differ: training/warm_start.py); None: random.
     """
@@ -70,6 +73,7 @@ class TrainConfig:
     precision: Literal["fp32", "bf16"] = "fp32"
     compile: bool = False
     init: str | None = None
+    views_min: int | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -81,6 +85,9 @@ class TrainConfig:
         bad = [name for name in positive if getattr(self, name) is not None and getattr(self, name) < 1]
         if bad:
             raise UserError(f"training settings must be positive: {', '.join(f'{n}={getattr(self, n)}' for n in bad)}")
+        if self.views_min is not None and not 1 <= self.views_min <= self.model.num_views:
+            raise UserError(f"--views-min must be between 1 and the model's num_views ({self.model.num_views}), "
+                            f"got {self.views_min}")
         if self.minutes is not None and self.minutes <= 0:
             raise UserError(f"--minutes must be positive, got {self.minutes}")
         if self.data_budget_mb < 0:
@@ -98,7 +105,7 @@ class TrainConfig:
 
 # Changing these on --resume keeps training valid but the run no longer matches an uninterrupted one.
 DATA_FIELDS = ("rays", "resolution", "seed", "lr", "lr_encoder", "lr_half_life", "lr_min", "val_scenes",
-               "batch_scenes")
+               "batch_scenes", "views_min")
 
 # Scenes per step when --batch-scenes is not given. CPU: measured (docs/benchmarks.md, issue 9). CUDA: not
 # measured yet (no GPU was lent to that work); 4 keeps B * V = 32 images per encoder call.

@@ -52,14 +52,17 @@ class TrainScene:
 
 @dataclass(frozen=True)
 class TrainBatch:
-    """What one step feeds the model: source views, rays of the target and their colours."""
+    """What one step feeds the model: source views, rays of the target, their colours and (when the loss uses
+    depth) their true depths (training/depth.py: 0 no surface, NaN unknown)."""
 
     views: SourceViews  # images [V, H, W, 3]
     rays: Rays  # [R]
     target_rgb: Tensor  # [R, 3]
+    target_depth: Tensor | None = None  # [R]
 
     def to(self, device: torch.device) -> "TrainBatch":
-        return TrainBatch(self.views.to(device), self.rays.to(device), self.target_rgb.to(device))
+        depth = None if self.target_depth is None else self.target_depth.to(device)
+        return TrainBatch(self.views.to(device), self.rays.to(device), self.target_rgb.to(device), depth)
 
 
 @dataclass(frozen=True)

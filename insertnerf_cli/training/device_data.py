@@ -19,8 +19,11 @@ from tqdm import tqdm
 
 from ..views import nearest_views
 from .data import ImageCache, Say, TrainScene, decode_uint8
+from .depth import decode_depth
 
 _BYTES_PER_MB = 1 << 20
+# Bytes of a view's float32 depth map per byte of its uint8 RGB image.
+_DEPTH_PER_IMAGE_BYTE = torch.finfo(torch.float32).bits / 8 / 3
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,8 @@ class SizeGroup:
             views, nearest first (views.nearest_views); padding beyond n_train - 1 is never drawn.
         K, c2w: [T, 3, 3], [T, 4, 4] float32 cameras at the training size; near, far: [T] float32 bounds.
         images: [T, H, W, 3] uint8 on the training device, or None when the set is streamed from disk.
+        depths: [T, H, W] float32 true depths on the training device (training/depth.py: 0 no surface, NaN
+            unknown) when the loss uses depth and the set is resident, else None.
         views: (scene index into the training list, image index in that scene) of each flat view (host).
     """
 
@@ -51,6 +56,7 @@ class SizeGroup:
     far: Tensor
     images: Tensor | None
     views: tuple[tuple[int, int], ...]
+    depths: Tensor | None = None
 
     @property
     def nbytes(self) -> int:
@@ -59,37 +65,46 @@ class SizeGroup:
 
 @dataclass(frozen=True)
 class TrainingSet:
-    """Every training scene as tensors, by image size; ``resident`` is False when images stream from disk."""
+    """Every training scene as tensors, by image size; ``resident`` is False when images stream from disk;
+    ``with_depth``: steps carry the targets' true depths."""
 
     groups: tuple[SizeGroup, ...]
     scenes: tuple[TrainScene, ...]
     resident: bool
     device: torch.device
+    with_depth: bool = False
 
 
 def load_training_set(scenes: list[TrainScene], budget_mb: int, device: torch.device, say: Say,
-                      show_progress: bool = True) -> TrainingSet:
-    """Group the scenes by size, build their view tables and decode their images when they fit the budget."""
+                      show_progress: bool = True, with_depth: bool = False) -> TrainingSet:
+    """Group the scenes by size, build their view tables and decode their images (and with ``with_depth`` their
+    true depths, 4 bytes a pixel more) when they fit the budget."""
     by_size: dict[tuple[int, int], list[int]] = {}
     for i, scene in enumerate(scenes):
         by_size.setdefault((scene.cameras.height, scene.cameras.width), []).append(i)
     groups = [_group(scenes, members, device) for members in by_size.values()]
-    total = sum(g.nbytes for g in groups)
+    total = sum(g.nbytes for g in groups) * (1.0 + (_DEPTH_PER_IMAGE_BYTE if with_depth else 0.0))
     if total > budget_mb * _BYTES_PER_MB:
         say(f"the training images need {total / _BYTES_PER_MB:,.0f} MB, more than --data-budget-mb {budget_mb}: "
             "reading them from disk each step (slower); raise the budget if memory allows.")
-        return TrainingSet(tuple(groups), tuple(scenes), False, device)
+        return TrainingSet(tuple(groups), tuple(scenes), False, device, with_depth)
     jobs = [(scenes[s], i) for g in groups for s, i in g.views]
+
+    def decode(job: tuple[TrainScene, int]) -> tuple[Tensor, Tensor | None]:
+        return decode_uint8(*job), decode_depth(*job) if with_depth else None
+
     with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:  # decoders release the GIL
-        decoded = list(tqdm(pool.map(lambda job: decode_uint8(*job), jobs), total=len(jobs), unit="view",
+        decoded = list(tqdm(pool.map(decode, jobs), total=len(jobs), unit="view",
                             desc="decoding training views", file=sys.stderr, leave=False,
                             disable=not show_progress))
     start, filled = 0, []
     for g in groups:
-        images = torch.stack(decoded[start:start + len(g.views)]).to(device)  # [T, H, W, 3] uint8
+        part = decoded[start:start + len(g.views)]
+        images = torch.stack([image for image, _ in part]).to(device)  # [T, H, W, 3] uint8
+        depths = torch.stack([depth for _, depth in part]).to(device) if with_depth else None  # [T, H, W]
         start += len(g.views)
-        filled.append(replace(g, images=images))
-    return TrainingSet(tuple(filled), tuple(scenes), True, device)
+        filled.append(replace(g, images=images, depths=depths))
+    return TrainingSet(tuple(filled), tuple(scenes), True, device, with_depth)
 
 
 def _group(scenes: list[TrainScene], members: list[int], device: torch.device) -> SizeGroup:
@@ -128,3 +143,11 @@ def gather_images(data: TrainingSet, group: SizeGroup, ids: Tensor, cache: Image
     if data.device.type == "cuda":
         images = images.pin_memory()
     return images.to(data.device, non_blocking=True)
+
+
+def gather_depths(data: TrainingSet, group: SizeGroup, ids: Tensor, pixels: Tensor) -> Tensor:
+    """True depths [B, P] at the flat pixel indices ``pixels`` [B, P] of the views ``ids`` [B]."""
+    if group.depths is not None:
+        return group.depths[ids].reshape(len(ids), -1).gather(1, pixels)
+    flat = [decode_depth(data.scenes[s], i).reshape(-1) for s, i in (group.views[v] for v in ids.tolist())]
+    return torch.stack(flat).to(data.device).gather(1, pixels)
