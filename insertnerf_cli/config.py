@@ -36,6 +36,7 @@ class ModelConfig:
     # --- multi-layer dynamic-static aggregation
     aggregate_hidden: int = 8  # hidden width of the dynamic-weight MLP (per view, so kept small)
     static_sharpness_init: float = 0.2  # IBRNet's s in exp(|s|(cos - 1))
+    visibility_cue: bool = False  # each view's deviation from the others feeds its dynamic weight (issue 27)
     # --- HyperNet modules and the NeRF MLP
     nerf_width: int = 32
     nerf_layers: int = 4  # geometry layers, each preceded by a HyperNet module

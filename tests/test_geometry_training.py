@@ -131,3 +131,21 @@ def test_training_with_depth_distortion_infinity_and_varying_views(synth_set, tm
     lines = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
     logged = [line for line in lines if line.get("split") == "train"]
     assert logged and all(line["depth"] > 0 and line["distortion"] > 0 for line in logged)
+
+
+def test_the_visibility_cue_starts_neutral_and_warm_starts_from_a_model_without_it(tmp_path):
+    from insertnerf_cli.checkpoint import read_checkpoint, save_checkpoint
+    from insertnerf_cli.training.warm_start import warm_start
+
+    views = flat_views([(0.9, 0.1, 0.1), (0.1, 0.9, 0.1), (0.1, 0.1, 0.9), (0.5, 0.5, 0.1)])
+    torch.manual_seed(0)
+    plain = InsertNeRF(TINY).eval()
+    save_checkpoint(tmp_path / "plain.pt", plain, TINY)
+    cued = InsertNeRF(dataclasses.replace(TINY, visibility_cue=True)).eval()
+    started = warm_start(cued, read_checkpoint(tmp_path / "plain.pt"))
+    assert started.resampled == 0
+    assert torch.allclose(render_centre(cued, views), render_centre(plain, views), atol=1e-6)
+    with torch.no_grad():  # once the cue has weights, the views' disagreement changes the picture
+        for agg in cued.aggregators:
+            agg.dynamic_deviation.weight.fill_(5.0)
+    assert not torch.allclose(render_centre(cued, views), render_centre(plain, views), atol=1e-4)

@@ -1,7 +1,9 @@
 """Multi-layer dynamic-static (MLDS) aggregation: per feature scale, many views of a sample -> one descriptor.
 
 Per scale l (paper section 3.2, method.md sections 7.2-7.3):
-  1. dynamic weights M_dy = softmax over valid views of an MLP on [f_n, maxpool_n f, ray-direction difference];
+  1. dynamic weights M_dy = softmax over valid views of an MLP on [f_n, maxpool_n f, ray-direction difference]
+     and, with the visibility cue, |f_n - mean_n f|: a view that sees another surface in front of the sample
+     disagrees with the others there, and the cue lets the MLP take its weight away (IBRNet's and NeuRay's idea);
   2. weighted mean and variance of the features under M_dy;
   3. [f_n, mean, var] per view -> half width (the "halving" projection);
   4. static IBRNet-style weights exp(|s| (cos - 1)), min-shifted and normalised over valid views;
@@ -59,9 +61,11 @@ class ScaleAggregator(nn.Module):
         half_dim: width after the halving projection.
         hidden: hidden width of the dynamic-weight MLP.
         sharpness_init: initial s of the static weights exp(|s| (cos - 1)).
+        visibility: feed each view's deviation from the plain mean over views to the dynamic weights.
     """
 
-    def __init__(self, in_dim: int, half_dim: int, hidden: int, sharpness_init: float) -> None:
+    def __init__(self, in_dim: int, half_dim: int, hidden: int, sharpness_init: float,
+                 visibility: bool = False) -> None:
         super().__init__()
         # Linear layers on [per-view, per-sample] inputs are split, so the per-sample part is computed once
         # per sample instead of once per view: the same function with V times fewer multiply-adds for it.
@@ -69,6 +73,11 @@ class ScaleAggregator(nn.Module):
         self.dynamic_direction = nn.Linear(4, hidden, bias=False)
         self.dynamic_pool = nn.Linear(in_dim, hidden, bias=False)
         self.dynamic_out = nn.Linear(hidden, 1)
+        self.dynamic_deviation = None
+        if visibility:
+            # Zero at the start: a model warm-started from one without the cue begins as exactly that model.
+            self.dynamic_deviation = nn.Linear(in_dim, hidden, bias=False)
+            nn.init.zeros_(self.dynamic_deviation.weight)
         self.halve_view = nn.Linear(in_dim, half_dim)
         self.halve_moments = nn.Linear(2 * in_dim, half_dim, bias=False)
         self.sharpness = nn.Parameter(torch.tensor(float(sharpness_init)))
@@ -79,8 +88,11 @@ class ScaleAggregator(nn.Module):
         (descriptor [P, out_dim], dynamic weights [V, 1, P])."""
         pooled = features.amax(dim=0, keepdim=True)  # [1, C, P]
         per_sample = channel_linear(self.dynamic_pool, pooled)  # [1, h, P]
-        hidden = F.relu(channel_linear(self.dynamic_view, features,
-                                       channel_linear(self.dynamic_direction, ray_diff, per_sample)))  # [V, h, P]
+        per_view = channel_linear(self.dynamic_direction, ray_diff, per_sample)  # [V, h, P]
+        if self.dynamic_deviation is not None:
+            plain = features.sum(dim=0, keepdim=True) / mask.sum(dim=0, keepdim=True).clamp(min=1.0)  # [1, C, P]
+            per_view = channel_linear(self.dynamic_deviation, (features - plain).abs() * mask, per_view)
+        hidden = F.relu(channel_linear(self.dynamic_view, features, per_view))  # [V, h, P]
         dynamic = masked_softmax(channel_linear(self.dynamic_out, hidden), mask)  # [V, 1, P]
         mean, var = weighted_moments(features, dynamic)  # [1, C, P] each
         moments = channel_linear(self.halve_moments, torch.cat([mean, var], dim=1))  # [1, C/2, P]

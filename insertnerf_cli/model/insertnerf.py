@@ -30,7 +30,7 @@ class InsertNeRF(nn.Module):
         # The reference colour joins the finest scale only: it is a full-resolution signal.
         in_dims = [*cfg.feature_dims[:-1], cfg.feature_dims[-1] + 3]
         self.aggregators = nn.ModuleList(
-            ScaleAggregator(in_dim, dim // 2, cfg.aggregate_hidden, cfg.static_sharpness_init)
+            ScaleAggregator(in_dim, dim // 2, cfg.aggregate_hidden, cfg.static_sharpness_init, cfg.visibility_cue)
             for in_dim, dim in zip(in_dims, cfg.feature_dims))
         cond_dims = [agg.out_dim for agg in self.aggregators]
         self.coarse_head = NeRFHead(cfg, cond_dims, cfg.samples_coarse)

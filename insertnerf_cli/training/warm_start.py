@@ -21,6 +21,9 @@ from ..errors import UserError
 _SUMS_OVER_SAMPLES = ("mix.weight", "to_nodes")
 # ... and the one that has one row per sample (its entries keep their size).
 _PER_SAMPLE = ("from_nodes",)
+# Tensors added by a model switch and initialised so that the model starts as one without them (zeros): a
+# checkpoint from before the switch lacks them, and they keep their initial values.
+_NEUTRAL_ADDITIONS = ("dynamic_deviation.weight",)
 
 
 @dataclass(frozen=True)
@@ -34,7 +37,8 @@ class WarmStart:
 def warm_start(model: nn.Module, checkpoint: Checkpoint) -> WarmStart:
     """Load ``checkpoint``'s weights into ``model``, resampling sample-axis tensors whose sample count differs.
 
-    A separate fine head missing from a shared-head checkpoint starts as a copy of its coarse head. Any other
+    A separate fine head missing from a shared-head checkpoint starts as a copy of its coarse head; a neutral
+    addition (the visibility cue's zero weights) missing from it keeps its initial value. Any other
     difference (a width, a layer, a name) is a UserError: that is not the same network with other samples.
     """
     own = model.state_dict()
@@ -42,6 +46,9 @@ def warm_start(model: nn.Module, checkpoint: Checkpoint) -> WarmStart:
     for name in own:
         if name.startswith("fine_head.") and name not in theirs:
             theirs[name] = theirs.get("coarse_head." + name.removeprefix("fine_head."))
+    for name in own:
+        if name.endswith(_NEUTRAL_ADDITIONS) and name not in theirs:
+            theirs[name] = own[name]
     missing = sorted(n for n in own if theirs.get(n) is None)
     if missing:
         raise UserError(f"--init {checkpoint.path} lacks {len(missing)} tensors of this model (e.g. {missing[0]!r}): "
