@@ -11,7 +11,7 @@ from ..cameras import check_shape
 from ..config import ModelConfig
 from ..compositing import psnr
 from ..rays import Rays
-from .geometry_losses import depth_loss, distortion_loss
+from .geometry_losses import NO_SURFACE, depth_loss, distortion_loss
 from .types import EncodedViews, LossTerms, RenderOutput
 
 
@@ -37,6 +37,9 @@ def compute_losses(cfg: ModelConfig, output: RenderOutput, target_rgb: Tensor, e
     passes = ((output.coarse.weights, output.coarse_samples), (output.fine.weights, output.fine_samples))
     depth = zero
     if target_depth is not None and cfg.loss_depth_weight > 0:
+        if not cfg.infinity_sample:  # a fixed background cannot show a plain backdrop of another colour, so a
+            # ray without a surface may need a surface-like stand-in: its depth says nothing then
+            target_depth = torch.where(target_depth > NO_SURFACE, target_depth, torch.nan)
         depth = sum(depth_loss(w, s.edges, target_depth) for w, s in passes) / len(passes)
     distortion = zero
     if rays is not None and cfg.loss_distortion_weight > 0:
