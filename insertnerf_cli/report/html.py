@@ -14,7 +14,8 @@ table { border-collapse: collapse; margin: 4px 0 8px; }
 td, th { border-bottom: 1px solid #e1e5ea; padding: 4px 12px 4px 0; text-align: left; vertical-align: top; }
 th { color: #5b6673; font-weight: 600; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
 .pair { display: flex; gap: 16px; flex-wrap: wrap; } .pair figure { margin: 0; flex: 1 1 360px; }
-.pair video, .pair img { width: 100%; background: #000; border-radius: 4px; }
+.drawings { display: flex; gap: 16px; flex-wrap: wrap; }
+.pair video { width: 100%; height: 420px; object-fit: contain; background: #000; border-radius: 4px; }
 figcaption { color: #5b6673; font-size: 13px; margin-top: 2px; }
 .strip { display: flex; gap: 6px; flex-wrap: wrap; } .strip figure { margin: 0; width: 132px; }
 .strip img { width: 132px; display: block; border-radius: 3px; }

@@ -69,7 +69,8 @@ def _camera_drawing(p: RenderPage) -> str:
         return c2w[:, :3, 3], c2w[:, :3, 2], -c2w[:, :3, 1]  # centres, optical axes, up (OpenCV: -y)
 
     (ic, iforward, iup), (pc, pforward, _) = arrays(p.inputs), arrays(p.path)
-    return cameras_views(pc, pforward, ic, iforward, ViewAxes.of(ic, iup))
+    # Orbits and spirals loop (paths.py): the video goes from the last frame back to the first.
+    return cameras_views(pc, pforward, ic, iforward, ViewAxes.of(ic, iup), closed=p.summary.path != "input")
 
 
 def render_page(p: RenderPage) -> str:
@@ -88,12 +89,11 @@ def render_page(p: RenderPage) -> str:
     if s.pointcloud_points is not None:
         files.append((f'<a href="{link("pointcloud.ply")}">pointcloud.ply</a>',
                       esc(f"{s.pointcloud_points} coloured points in the scene's units")))
-    body = (f"<h2>Videos</h2>{videos}"
-            f'<h2>Camera path</h2><div class="pair">{_camera_drawing(p)}</div><p class="sub">Blue: the {s.frames} '
+    body = (f"<h2>Videos</h2>{videos}<h2>Frames</h2>{_strip(p)}"
+            f'<h2>Camera path</h2><div class="drawings">{_camera_drawing(p)}</div><p class="sub">Blue: the {s.frames} '
             f"rendered frames (ringed: the first); grey: the {len(p.inputs)} input cameras; ticks along the optical "
             "axes.</p>"
             f"<h2>Settings</h2>{settings_table(_settings(p))}<h2>Timings</h2>{settings_table(_timings(s))}"
-            f"<h2>Files</h2>{table(('file', 'content'), files)}"
-            f"<h2>Frames</h2>{_strip(p)}")
+            f"<h2>Files</h2>{table(('file', 'content'), files)}")
     return page(f"insertnerf render: {p.scene_dir.resolve().name}",
                 f"{s.frames} frames, {s.path} path, {s.width} x {s.height} px", body)

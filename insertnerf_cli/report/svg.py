@@ -82,15 +82,16 @@ class ViewAxes:
 
 
 def cameras_views(path_centres: np.ndarray, path_forward: np.ndarray, input_centres: np.ndarray,
-                  input_forward: np.ndarray, axes: ViewAxes, size: int = 360) -> str:
+                  input_forward: np.ndarray, axes: ViewAxes, closed: bool = False, size: int = 360) -> str:
     """Two panels, from above (across, depth) and from the side (across, up): the input cameras as grey dots
-    with a tick along their optical axis, the rendered path as a blue line, its first frame ringed."""
-    return "".join(_panel(title, dims, path_centres, path_forward, input_centres, input_forward, axes, size)
+    with a tick along their optical axis, the rendered path as a blue line (back to its start when ``closed``),
+    its first frame ringed. Centres [N, 3] and optical axes [N, 3] in world units."""
+    return "".join(_panel(title, dims, path_centres, path_forward, input_centres, input_forward, axes, closed, size)
                    for title, dims in (("from above", (0, 1)), ("from the side", (0, 2))))
 
 
 def _panel(title: str, dims: tuple[int, int], path_c: np.ndarray, path_f: np.ndarray, in_c: np.ndarray,
-           in_f: np.ndarray, axes: ViewAxes, size: int) -> str:
+           in_f: np.ndarray, axes: ViewAxes, closed: bool, size: int) -> str:
     pad = 24
     project = axes.matrix[list(dims)]  # [2, 3]
     pc, ic = path_c @ project.T, in_c @ project.T  # [F, 2], [N, 2]
@@ -109,7 +110,8 @@ def _panel(title: str, dims: tuple[int, int], path_c: np.ndarray, path_f: np.nda
         parts.append(f'<line x1="{x0:.1f}" y1="{y0:.1f}" x2="{x1:.1f}" y2="{y1:.1f}" stroke="{_INPUT_COLOUR}"/>'
                      f'<circle cx="{x0:.1f}" cy="{y0:.1f}" r="2.5" fill="{_INPUT_COLOUR}"/>')
     line = " ".join("{:.1f},{:.1f}".format(*s(c)) for c in pc)
-    parts.append(f'<polyline fill="none" stroke="{_PATH_COLOUR}" stroke-width="2" points="{line}"/>')
+    shape = "polygon" if closed else "polyline"
+    parts.append(f'<{shape} fill="none" stroke="{_PATH_COLOUR}" stroke-width="2" points="{line}"/>')
     for c, f in zip(pc, path_f @ project.T):
         (x0, y0), (x1, y1) = s(c), s(c + tick * f / max(np.linalg.norm(f), 1e-12))
         parts.append(f'<line x1="{x0:.1f}" y1="{y0:.1f}" x2="{x1:.1f}" y2="{y1:.1f}" stroke="{_PATH_COLOUR}" '
