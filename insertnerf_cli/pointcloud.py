@@ -61,7 +61,15 @@ def write_pointcloud(path: Path, cameras: Cameras, files: Sequence[FramePaths], 
     import trimesh
 
     points, colours = subsample(*fuse_frames(cameras, files, depth_scale), limit)
+    if not len(points):  # no valid depth anywhere: trimesh cannot export an empty cloud, the header says it all
+        write_bytes(path, _EMPTY_PLY)
+        return 0
     alpha = np.full((len(colours), 1), 255, dtype=np.uint8)
     cloud = trimesh.PointCloud(points, colors=np.concatenate([colours, alpha], axis=1))
     write_bytes(path, cloud.export(file_type="ply"))
     return len(points)
+
+
+_EMPTY_PLY = ("ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+              "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+              "property uchar alpha\nend_header\n").encode("ascii")

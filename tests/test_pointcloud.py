@@ -56,3 +56,18 @@ def test_render_pointcloud_loads_with_trimesh_in_the_scene_units(tmp_path):
     centres = np.array([f["transform_matrix"] for f in json.loads((out / "cameras.json").read_text())["frames"]])
     distances = np.linalg.norm(cloud.vertices[:, None] - centres[None, :, :3, 3], axis=-1).min(axis=1)
     assert distances.min() >= 0.5 * unit * 0.999 and distances.max() <= 4.0 * unit * 1.5
+
+
+def test_no_valid_depth_gives_an_empty_cloud_that_still_loads(tmp_path):
+    import imageio.v3 as iio
+
+    from insertnerf_cli.outputs import frame_paths, write_frame
+    from insertnerf_cli.pointcloud import write_pointcloud
+
+    paths = frame_paths(tmp_path, 0)
+    write_frame(paths, np.zeros((6, 8, 3)), np.zeros((6, 8), np.uint16), np.zeros((6, 8, 3), np.uint8))
+    assert iio.imread(paths.depth).max() == 0
+    camera = Cameras(intrinsics(10.0, 10.0, 4.0, 3.0)[None], torch.eye(4, dtype=torch.float64)[None], 6, 8)
+    assert write_pointcloud(tmp_path / "cloud.ply", camera, [paths], 1e-3) == 0
+    loaded = trimesh.load(tmp_path / "cloud.ply")
+    assert len(getattr(loaded, "vertices", [])) == 0
