@@ -19,7 +19,7 @@ th { color: #5b6673; font-weight: 600; } td.num { text-align: right; font-varian
 figcaption { color: #5b6673; font-size: 13px; margin-top: 2px; }
 .strip { display: flex; gap: 6px; flex-wrap: wrap; } .strip figure { margin: 0; width: 132px; }
 .strip img { width: 132px; display: block; border-radius: 3px; }
-.thumb { width: 480px; max-width: 100%; display: block; border-radius: 3px; }
+.thumb { height: 200px; max-width: 100%; object-fit: contain; display: block; border-radius: 3px; }
 svg { background: #fff; border: 1px solid #e1e5ea; border-radius: 4px; }
 """
 

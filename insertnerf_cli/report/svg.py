@@ -28,6 +28,7 @@ def line_chart(xs: Sequence[float], ys: Sequence[float], x_label: str, y_label: 
     finite = [y for y in ys if math.isfinite(y)] or [0.0]
     y_ticks = _nice_ticks(min(finite) - 0.5, max(finite) + 0.5)
     x0, x1 = min(xs), max(xs) if max(xs) > min(xs) else min(xs) + 1
+    x0, x1 = x0 - 0.06 * (x1 - x0), x1 + 0.06 * (x1 - x0)  # room for the end points' labels inside the axes
     y0, y1 = y_ticks[0], y_ticks[-1]
 
     def sx(x: float) -> float:
