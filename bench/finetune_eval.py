@@ -29,7 +29,7 @@ from insertnerf_cli.commands.common import resolve_device  # noqa: E402
 from insertnerf_cli.errors import UserError  # noqa: E402
 from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune  # noqa: E402
 from insertnerf_cli.finetune.data import finetune_scene  # noqa: E402
-from insertnerf_cli.pipeline import DEFAULT_RESOLUTION, DEFAULT_VIEWS, EvalConfig, evaluate_scene  # noqa: E402
+from insertnerf_cli.evaluate import DEFAULT_RESOLUTION, DEFAULT_VIEWS, EvalConfig, evaluate_scene  # noqa: E402
 from insertnerf_cli.training.data import ImageCache, ViewDraw, make_batch  # noqa: E402
 from insertnerf_cli.views import nearest_views  # noqa: E402
 

@@ -25,7 +25,7 @@ from typing import Iterator
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli import render  # noqa: E402
-from insertnerf_cli.pipeline import EvalConfig, evaluate_scene  # noqa: E402
+from insertnerf_cli.evaluate import EvalConfig, evaluate_scene  # noqa: E402
 
 
 FIELDS = ("coarse_stride", "fine_stride", "smooth_rgb", "smooth_depth")

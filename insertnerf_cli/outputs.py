@@ -2,15 +2,20 @@
 recorded in OUT/.insertnerf-outputs.json before it is made (outdir.py: what --overwrite may remove):
 
     OUT/frames/00000.png      RGB, 8 bit
-    OUT/depth/00000.png       uint16 millimetres in the user's scene units (value / 1000 = depth), 0 = invalid
-                              (opacity below 0.5, or not finite)
+    OUT/depth/00000.png       uint16 steps of depth_unit_scale_factor (cameras.json) in the user's scene units
+                              (depth = value * factor), 0 = invalid (opacity below 0.5, or not finite); the
+                              factor is chosen per render from the path's far bound, so no valid depth is clipped
+    OUT/depth/00000.npy       with --depth-format npy instead: float32 depth in the scene units, NaN = invalid
     OUT/depth_vis/00000.png   the depth as a turbo colour map (near = red, far = blue, invalid = black)
     OUT/video.mp4, depth.mp4  H.264 yuv420p through imageio-ffmpeg, assembled from the PNGs
     OUT/cameras.json          nerfstudio-style transforms of the rendered path (OpenGL c2w) with the depth scale
+    OUT/index.html            the page of the render (report/render_page.py); OUT/pointcloud.ply with --pointcloud
 """
 from __future__ import annotations
 
+import io
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -21,7 +26,7 @@ from torch import Tensor
 from .atomic import atomic_path, write_bytes, write_json
 from .cameras import Cameras
 from .errors import UserError
-from .outdir import OutputRecord, check_output, foreign_entries, remove_if_empty
+from .outdir import OutputRecord, foreign_entries, remove_if_empty
 from .poses_io import LEGACY_OUTPUTS as POSES_LEGACY_OUTPUTS, OWNER as POSES_OWNER
 
 FRAME_DIRS = ("frames", "depth", "depth_vis")
@@ -31,14 +36,17 @@ OWNER = "render"  # the name of its list in an output record (outdir.py)
 STATE_FILE = "render_config.json"  # the settings the frames depend on: equal settings may resume
 POSES_DIR = "poses"  # poses pycolmap estimated for a folder of photos
 # What renders of versions without an output record wrote: the only names --overwrite removes from such a folder.
-_FRAME_GLOB = "[0-9][0-9][0-9][0-9][0-9].png"
-LEGACY_OUTPUTS = (*(f"{d}/{_FRAME_GLOB}" for d in FRAME_DIRS), *(f"{d}/" for d in FRAME_DIRS), *VIDEOS,
+FRAME_GLOB = "[0-9][0-9][0-9][0-9][0-9].png"
+LEGACY_OUTPUTS = (*(f"{d}/{FRAME_GLOB}" for d in FRAME_DIRS), *(f"{d}/" for d in FRAME_DIRS), *VIDEOS,
                   CAMERAS_JSON, STATE_FILE)
 # A PNG ends with this IEND chunk; a file cut short by a crash or power loss lacks it.
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
-# Depth PNGs store millimetres of the user's unit, as nerfstudio's depth files do.
-DEPTH_UNIT_SCALE = 1e-3
+DEPTH_FORMATS = ("png16", "npy")
+DEFAULT_DEPTH_FORMAT = "png16"
+# The depth scale leaves this much room above the path's far bound: a depth is a weighted mean of sample depths
+# within [near, far], so only float rounding could reach past far.
+_DEPTH_HEADROOM = 1.01
 _UINT16_MAX = np.iinfo(np.uint16).max
 _UINT8_MAX = np.iinfo(np.uint8).max
 # imageio's quality scale is 0-10 (10 best); 8 keeps H.264 artefacts invisible at a few MB per minute.
@@ -54,8 +62,9 @@ class FramePaths:
     depth_vis: Path
 
     def all_exist(self) -> bool:
-        """Whether all three files are complete PNGs (a zero-byte or truncated one means: render again)."""
-        return all(is_complete_png(p) for p in (self.frame, self.depth, self.depth_vis))
+        """Whether all three files are complete (a zero-byte or truncated one means: render again)."""
+        depth_ok = is_complete_npy(self.depth) if self.depth.suffix == ".npy" else is_complete_png(self.depth)
+        return depth_ok and is_complete_png(self.frame) and is_complete_png(self.depth_vis)
 
 
 def is_complete_png(path: Path) -> bool:
@@ -72,14 +81,32 @@ def is_complete_png(path: Path) -> bool:
         return False
 
 
-def frame_name(index: int) -> str:
+def is_complete_npy(path: Path) -> bool:
+    """Whether ``path`` is a whole .npy file: a readable header and exactly the data it announces."""
+    try:
+        with open(path, "rb") as handle:
+            version = np.lib.format.read_magic(handle)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read(handle)
+            return path.stat().st_size - handle.tell() == math.prod(shape) * np.dtype(dtype).itemsize
+    except (OSError, ValueError):
+        return False
+
+
+def frame_name(index: int, suffix: str = ".png") -> str:
     """File name of frame ``index``: 00000.png, 00001.png, ..."""
-    return f"{index:05d}.png"
+    return f"{index:05d}{suffix}"
 
 
-def frame_paths(out_dir: Path, index: int) -> FramePaths:
+def depth_name(index: int, depth_format: str = "png16") -> str:
+    """The depth file of frame ``index`` under depth/: 00000.png (png16) or 00000.npy."""
+    return frame_name(index, ".npy" if depth_format == "npy" else ".png")
+
+
+def frame_paths(out_dir: Path, index: int, depth_format: str = "png16") -> FramePaths:
     name = frame_name(index)
-    return FramePaths(*(out_dir / sub / name for sub in FRAME_DIRS))
+    return FramePaths(out_dir / "frames" / name, out_dir / "depth" / depth_name(index, depth_format),
+                      out_dir / "depth_vis" / name)
 
 
 def ffmpeg_exe() -> str:
@@ -115,16 +142,44 @@ def write_png(path: Path, image: np.ndarray) -> None:
     write_bytes(path, iio.imwrite("<bytes>", image, extension=".png"))
 
 
-def depth_to_uint16(depth: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, int]:
-    """Depth [H, W] in user units -> (uint16 millimetres [H, W], number of pixels clipped at the maximum).
+def depth_scale_for(far: float) -> float:
+    """The depth_unit_scale_factor of a render whose depths reach at most ``far`` (scene units): the smallest
+    1, 2 or 5 times a power of ten whose uint16 range holds ``far`` (with _DEPTH_HEADROOM), so no valid depth is
+    ever clipped and a step stays below 2.5e-5 * far (1e-3 for far = 50: millimetres)."""
+    if not (math.isfinite(far) and far > 0):
+        raise ValueError(f"the far bound must be a positive finite number, got {far}")
+    step = far * _DEPTH_HEADROOM / _UINT16_MAX
+    exponent = math.floor(math.log10(step))
+    # Written as decimal text and parsed, so that 2e-05 is the float nearest to 2e-05, not 2 * 10.0 ** -5.
+    return next(s for s in (float(f"{m}e{exponent + e}") for e in (0, 1) for m in (1, 2, 5)) if s >= step)
 
-    Invalid or non-finite pixels become 0; valid depths round to at least 1 mm so they never read as invalid.
+
+def depth_to_uint16(depth: np.ndarray, valid: np.ndarray, scale: float) -> tuple[np.ndarray, int]:
+    """Depth [H, W] in scene units -> (uint16 steps of ``scale`` [H, W], number of pixels clipped at the maximum).
+
+    Invalid or non-finite pixels become 0; valid depths round to at least 1 step so they never read as invalid.
+    With the scale of :func:`depth_scale_for` the clipped count is 0.
     """
-    mm = depth / DEPTH_UNIT_SCALE
-    ok = valid & np.isfinite(mm) & (mm > 0)
-    clipped = int((ok & (mm > _UINT16_MAX)).sum())
-    out = np.where(ok, np.clip(np.rint(mm), 1, _UINT16_MAX), 0).astype(np.uint16)
+    steps = depth / scale
+    ok = valid & np.isfinite(steps) & (steps > 0)
+    clipped = int((ok & (steps > _UINT16_MAX + 0.5)).sum())
+    out = np.where(ok, np.clip(np.rint(steps), 1, _UINT16_MAX), 0).astype(np.uint16)
     return out, clipped
+
+
+def depth_to_float(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Depth [H, W] in scene units -> float32 [H, W] with NaN where invalid (--depth-format npy)."""
+    return np.where(valid & np.isfinite(depth), depth, np.nan).astype(np.float32)
+
+
+def read_depth(path: Path, scale: float) -> np.ndarray:
+    """A depth file back in scene units: float64 [H, W], NaN = invalid (.png: value * scale, 0 invalid; .npy)."""
+    if path.suffix == ".npy":
+        return np.load(path, allow_pickle=False).astype(np.float64)
+    import imageio.v3 as iio
+
+    raw = iio.imread(path)
+    return np.where(raw > 0, raw.astype(np.float64) * scale, np.nan)
 
 
 def depth_to_turbo(depth: np.ndarray, valid: np.ndarray, near: float, far: float) -> np.ndarray:
@@ -142,9 +197,17 @@ def depth_to_turbo(depth: np.ndarray, valid: np.ndarray, near: float, far: float
     return np.where((valid & np.isfinite(depth))[..., None], rgb, 0).astype(np.uint8)
 
 
-def write_frame(paths: FramePaths, rgb: np.ndarray, depth_mm: np.ndarray, depth_vis: np.ndarray) -> None:
-    """Write one frame's three files; the colour frame last, so its presence marks the frame as done."""
-    write_png(paths.depth, depth_mm)
+def write_npy(path: Path, array: np.ndarray) -> None:
+    """Write an .npy file atomically (encoded in memory, like write_png)."""
+    buffer = io.BytesIO()
+    np.save(buffer, array, allow_pickle=False)
+    write_bytes(path, buffer.getvalue())
+
+
+def write_frame(paths: FramePaths, rgb: np.ndarray, depth: np.ndarray, depth_vis: np.ndarray) -> None:
+    """Write one frame's three files (depth: uint16 [H, W] to a .png, float32 to a .npy); the colour frame last,
+    so its presence marks the frame as done."""
+    (write_npy if paths.depth.suffix == ".npy" else write_png)(paths.depth, depth)
     write_png(paths.depth_vis, depth_vis)
     write_png(paths.frame, to_uint8(rgb))
 
@@ -185,20 +248,23 @@ def video_codec(path: Path) -> str:
     return str(meta["codec"])
 
 
-def write_cameras_json(path: Path, cameras: Cameras, near: Tensor, far: Tensor, extra: dict | None = None) -> None:
+def write_cameras_json(path: Path, cameras: Cameras, near: Tensor, far: Tensor, depth_scale: float,
+                       depth_format: str = "png16", extra: dict | None = None) -> None:
     """Write cameras.json (nerfstudio transforms, OpenGL c2w) for a path of len(cameras) frames, atomically.
 
     Args:
         cameras: the rendered path in the user's world units; near, far: [F] bounds in the same units.
+        depth_scale: depth_unit_scale_factor of the depth PNGs (depth = value * factor; 1 for npy files).
         extra: top-level keys to add (e.g. the path kind, fps, the similarity to the normalised frame).
-    Frames are named frames/00000.png, ...; depth files hold millimetres: depth = value * depth_unit_scale_factor.
+    Frames are named frames/00000.png, ...; depth files depth/00000.png (or .npy).
     """
     from .scenes.writers import write_nerfstudio_transforms
 
-    names = [frame_name(i) for i in range(len(cameras))]
-    write_nerfstudio_transforms(path, cameras, [f"frames/{n}" for n in names], near=near, far=far,
-                                extra={"depth_unit_scale_factor": DEPTH_UNIT_SCALE, **(extra or {})},
-                                frame_extras=[{"depth_file_path": f"depth/{n}"} for n in names])
+    write_nerfstudio_transforms(path, cameras, [f"frames/{frame_name(i)}" for i in range(len(cameras))], near=near,
+                                far=far, extra={"depth_unit_scale_factor": depth_scale, "depth_format": depth_format,
+                                                **(extra or {})},
+                                frame_extras=[{"depth_file_path": f"depth/{depth_name(i, depth_format)}"}
+                                              for i in range(len(cameras))])
 
 
 def same_cameras_as_written(path: Path, cameras: Cameras) -> bool:
@@ -255,10 +321,11 @@ def state_differences(old: dict, new: dict) -> str:
     return "; ".join(parts) or "unknown"
 
 
-def claim_render_outputs(out_dir: Path, frames: int) -> None:
-    """Record every path the render of ``frames`` frames will create in OUT, before creating any."""
-    names = [f"{d}/{frame_name(i)}" for d in FRAME_DIRS for i in range(frames)]
-    OutputRecord(out_dir, OWNER).claim(*FRAME_DIRS, *names, *VIDEOS, CAMERAS_JSON, STATE_FILE)
+def claim_render_outputs(out_dir: Path, frames: int, depth_format: str, *more: str) -> None:
+    """Record every path the render of ``frames`` frames (and ``more``) will create in OUT, before creating any."""
+    names = [p.relative_to(out_dir).as_posix() for i in range(frames)
+             for p in vars(frame_paths(out_dir, i, depth_format)).values()]
+    OutputRecord(out_dir, OWNER).claim(*FRAME_DIRS, *names, *VIDEOS, CAMERAS_JSON, STATE_FILE, *more)
 
 
 def write_state(out_dir: Path, state: dict) -> None:
@@ -276,53 +343,7 @@ def read_state(state_file: Path) -> dict | None:
 
 def check_resumable(out_dir: Path, cameras: Cameras) -> None:
     """Finished frames may be kept only if they were rendered along the same cameras (user units)."""
-    done = any(frame_paths(out_dir, i).frame.exists() for i in range(len(cameras)))
+    done = any((out_dir / "frames" / frame_name(i)).exists() for i in range(len(cameras)))
     if done and not same_cameras_as_written(out_dir / CAMERAS_JSON, cameras):
         raise UserError(f"{out_dir} holds frames of a different camera path (the scene's poses or insertnerf "
                         "changed since); pass --overwrite to render them again, or choose another --out")
-
-
-# ------------------------------------------------------------------------------------------ eval outputs
-# Side-by-sides that eval versions without an output record wrote (what --overwrite removes from such a folder).
-_EVAL_LEGACY_OUTPUTS = (_FRAME_GLOB,)
-
-
-def check_eval_outputs(scene_dir: Path, checkpoint: Path | None, json_path: Path | None, out_dir: Path | None,
-                       overwrite: bool) -> None:
-    """Refuse, before any work, eval outputs inside the inputs or not writable, and replacing an existing report
-    or side-by-sides without overwrite."""
-    inputs = [scene_dir, checkpoint]
-    if json_path is not None:
-        check_output(Path(json_path), inputs, is_dir=False, what="--json", kind="input scene or checkpoint")
-    if out_dir is not None:
-        check_output(Path(out_dir), inputs, kind="input scene or checkpoint")
-    if overwrite:
-        return
-    if json_path is not None and Path(json_path).exists():
-        raise UserError(f"{json_path} exists; pass --overwrite to replace it or choose another --json")
-    if out_dir is not None and Path(out_dir).is_dir() and any(Path(out_dir).iterdir()):
-        raise UserError(f"{out_dir} is not empty; pass --overwrite to replace the images insertnerf wrote "
-                        "there (other files are kept) or choose another --out")
-
-
-def prepare_side_by_sides(out_dir: Path | None, held: list[int]) -> None:
-    """Remove the side-by-sides of an earlier eval (only ours) and record the ones this run writes."""
-    if out_dir is None:
-        return
-    record = OutputRecord(out_dir, "eval")
-    record.remove(legacy=_EVAL_LEGACY_OUTPUTS)
-    record.claim(*(frame_name(i) for i in held))
-
-
-# Absolute colour error that maps to the top of the colour map in eval's side-by-sides: errors past a quarter of
-# the range are already glaring, and a fixed scale keeps images of different views comparable.
-ERROR_VIS_MAX = 0.25
-
-
-def side_by_side(render: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """[H, 3W, 3] uint8: render | truth | per-pixel mean absolute error (turbo, 0 to ERROR_VIS_MAX)."""
-    import cv2
-
-    error = np.abs(render.astype(np.float64) - truth).mean(-1) / ERROR_VIS_MAX
-    error_rgb = cv2.applyColorMap(to_uint8(np.clip(error, 0, 1)[..., None])[..., 0], cv2.COLORMAP_TURBO)[..., ::-1]
-    return np.concatenate([to_uint8(render), to_uint8(truth), error_rgb], axis=1)

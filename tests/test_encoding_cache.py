@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from insertnerf_cli.model import EncodedViews, InsertNeRF, SourceViews
-from insertnerf_cli.pipeline import RenderConfig, _Renderer
+from insertnerf_cli.view_renderer import ViewRenderer
 from insertnerf_cli.scenes import load_scene, normalize_scene
 from model_fixtures import TINY, sphere_views  # noqa: F401
 from scene_fixtures import known_scene, write_blender
@@ -43,7 +43,7 @@ def test_renderer_encodes_each_view_once_while_frames_share_views(tmp_path):
         return encode(views)
 
     model.encode = counting_encode
-    renderer = _Renderer(model, scene, RenderConfig(views=3), (16, 16))
+    renderer = ViewRenderer(model, scene, (16, 16), views=3)
     first = renderer._encoded([2, 0, 1])
     second = renderer._encoded([1, 2, 3])
     assert encoded_counts == [3, 1]  # only view 3 is new for the second frame

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import imageio.v3 as iio
 import numpy as np
@@ -84,3 +85,42 @@ def test_held_out_views_rules(tmp_path):
     assert held_out_views(split, max_views=2) == [6, 9]  # evenly spread
     plain = load_scene(make_scene(tmp_path / "plain", {"train": 17}))
     assert held_out_views(plain) == [0, 8, 16]
+
+
+def test_a_list_of_view_counts_scores_each_on_the_same_held_out_views(checkpoint, tmp_path, monkeypatch):
+    from insertnerf_cli.model import InsertNeRF
+
+    encoded = []
+    encode = InsertNeRF.encode
+    monkeypatch.setattr(InsertNeRF, "encode", lambda self, views: encoded.append(len(views)) or encode(self, views))
+    scene = make_scene(tmp_path / "scene", {"train": 10, "test": 2})
+    result = _eval(scene, checkpoint, "--views", "5,2,3", "--json", tmp_path / "scores.json", "--out",
+                   tmp_path / "sbs")
+    assert result.exit_code == 0, result.output
+    assert "2 views" in result.output and "5 views" in result.output and "\nmean " in result.output
+    report = json.loads((tmp_path / "scores.json").read_text())
+    assert report["reference_views"] == [2, 3, 5] and [r["reference_views"] for r in report["by_count"]] == [2, 3, 5]
+    for count, k in zip(report["by_count"], (2, 3, 5)):
+        _check_references(count, held=[10, 11], n=12, k=k)
+        assert count["psnr"] == pytest.approx(np.mean([v["psnr"] for v in count["views"]]))
+        for v in count["views"]:
+            assert (tmp_path / "sbs" / f"views_{k}" / f"{v['index']:05d}.png").is_file()
+    # The table's mean row holds each count's mean PSNR.
+    mean_row = next(line for line in result.output.splitlines() if line.startswith("mean"))
+    assert [f"{c['psnr']:.2f}" for c in report["by_count"]] == re.findall(r"(-?\d+\.\d\d) /", mean_row)
+    # Each held-out view encodes its 5 nearest views once; the 2 and 3 nearest are among them.
+    assert sum(encoded) <= 2 * 5
+
+
+def test_a_single_count_keeps_the_flat_json(checkpoint, tmp_path):
+    scene = make_scene(tmp_path / "scene", {"train": 6, "test": 1})
+    assert _eval(scene, checkpoint, "--views", "3", "--json", tmp_path / "s.json").exit_code == 0
+    report = json.loads((tmp_path / "s.json").read_text())
+    assert {"psnr", "ssim", "views", "scene", "height", "width"} <= set(report) and report["reference_views"] == 3
+
+
+@pytest.mark.parametrize("bad", ["0", "3,x", "3,,6", "-1,4"])
+def test_bad_view_lists_are_one_line_usage_errors(checkpoint, tmp_path, bad):
+    scene = make_scene(tmp_path / "scene", {"train": 6, "test": 1})
+    result = _eval(scene, checkpoint, "--views", bad)
+    assert result.exit_code == 2 and "--views" in result.output and "Traceback" not in result.output

@@ -81,7 +81,7 @@ def test_cycle_finder_finds_a_circle():
 def test_graph_sees_relative_and_deferred_imports():
     graph = import_graph()
     assert "insertnerf_cli.scenes.images" in graph["insertnerf_cli.scenes.base"]
-    assert "insertnerf_cli.finetune" in graph["insertnerf_cli.pipeline"]  # imported inside a function
+    assert "insertnerf_cli.finetune" in graph["insertnerf_cli.render_inputs"]  # imported inside a function
 
 
 def test_no_import_circles():

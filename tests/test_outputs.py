@@ -9,28 +9,28 @@ import torch
 
 from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.errors import UserError
-from insertnerf_cli.outputs import (DEPTH_UNIT_SCALE, depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths,
-                                    side_by_side, to_uint8, video_codec, write_cameras_json, write_frame, write_png,
-                                    write_video)
+from insertnerf_cli.eval_outputs import side_by_side
+from insertnerf_cli.outputs import (depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths, to_uint8, video_codec,
+                                    write_cameras_json, write_frame, write_png, write_video)
 
 
-def test_depth_png_round_trips_as_uint16_millimetres(tmp_path):
+def test_depth_png_round_trips_as_uint16_steps_of_the_scale(tmp_path):
     depth = np.array([[0.5, 1.2345], [np.nan, 70.0]])
     valid = np.array([[True, True], [True, False]])
-    mm, clipped = depth_to_uint16(depth, valid)
-    assert mm.dtype == np.uint16 and clipped == 0
-    np.testing.assert_array_equal(mm, [[500, 1234], [0, 0]])  # NaN and invalid pixels read as 0
-    write_png(tmp_path / "d.png", mm)
+    steps, clipped = depth_to_uint16(depth, valid, 1e-3)
+    assert steps.dtype == np.uint16 and clipped == 0
+    np.testing.assert_array_equal(steps, [[500, 1234], [0, 0]])  # NaN and invalid pixels read as 0
+    write_png(tmp_path / "d.png", steps)
     back = iio.imread(tmp_path / "d.png")
     assert back.dtype == np.uint16
-    np.testing.assert_array_equal(back, mm)
-    np.testing.assert_allclose(back[0] * DEPTH_UNIT_SCALE, [0.5, 1.234])
+    np.testing.assert_array_equal(back, steps)
+    np.testing.assert_allclose(back[0] * 1e-3, [0.5, 1.234])
 
 
-def test_depth_too_far_is_clipped_and_counted_tiny_depth_stays_valid():
-    mm, clipped = depth_to_uint16(np.array([[100.0, 1e-5]]), np.ones((1, 2), bool))
+def test_depth_too_far_for_the_scale_is_clipped_and_counted_tiny_depth_stays_valid():
+    steps, clipped = depth_to_uint16(np.array([[100.0, 1e-5]]), np.ones((1, 2), bool), 1e-3)
     assert clipped == 1
-    np.testing.assert_array_equal(mm, [[65535, 1]])
+    np.testing.assert_array_equal(steps, [[65535, 1]])
 
 
 def test_turbo_preview_near_is_warm_far_is_cool_invalid_is_black():
@@ -91,9 +91,9 @@ def test_cameras_json_is_nerfstudio_style(tmp_path):
     c2w[1, 0, 3] = 2.0
     cams = Cameras(intrinsics(30.0, 30.0, 16.0, 12.0).expand(2, 3, 3), c2w, 24, 32)
     near, far = torch.full((2,), 0.5, dtype=torch.float64), torch.full((2,), 6.0, dtype=torch.float64)
-    write_cameras_json(tmp_path / "cameras.json", cams, near, far, extra={"path": "orbit"})
+    write_cameras_json(tmp_path / "cameras.json", cams, near, far, 2e-4, extra={"path": "orbit"})
     data = json.loads((tmp_path / "cameras.json").read_text())
-    assert data["depth_unit_scale_factor"] == DEPTH_UNIT_SCALE and data["path"] == "orbit"
+    assert data["depth_unit_scale_factor"] == 2e-4 and data["path"] == "orbit" and data["depth_format"] == "png16"
     assert data["fl_x"] == 30.0 and data["w"] == 32 and data["h"] == 24
     assert [f["file_path"] for f in data["frames"]] == ["frames/00000.png", "frames/00001.png"]
     assert data["frames"][1]["depth_file_path"] == "depth/00001.png"

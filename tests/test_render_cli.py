@@ -17,7 +17,7 @@ from insertnerf_cli.checkpoint import bundled_checkpoint, checkpoint_sha256, sav
 from insertnerf_cli.cli import cli
 from insertnerf_cli.config import ModelConfig
 from insertnerf_cli.model import InsertNeRF
-from insertnerf_cli.outputs import DEPTH_UNIT_SCALE, STATE_FILE, video_codec
+from insertnerf_cli.outputs import STATE_FILE, depth_scale_for, video_codec
 from insertnerf_cli.paths import look_at
 from insertnerf_cli.scenes import write_blender_transforms
 
@@ -95,7 +95,10 @@ def test_render_writes_every_output_with_the_right_types(scene_and_checkpoint, t
     out = tmp_path / "views"
     result = _render(scene, ckpt, out, "--frames", 3, "--fps", 5)
     assert result.exit_code == 0, result.output
-    assert "3 frames (orbit, 16x12)" in result.output
+    assert "3 frames (orbit, 16x12)" in result.output and "clipped" not in result.output
+    cams = json.loads((out / "cameras.json").read_text())
+    scale = cams["depth_unit_scale_factor"]
+    assert scale == depth_scale_for(4.0)  # the scene's far bound
     for i in range(3):
         rgb = iio.imread(out / "frames" / f"{i:05d}.png")
         depth = iio.imread(out / "depth" / f"{i:05d}.png")
@@ -104,13 +107,12 @@ def test_render_writes_every_output_with_the_right_types(scene_and_checkpoint, t
         assert depth.dtype == np.uint16 and depth.shape == (HEIGHT // 2, WIDTH // 2)
         assert vis.dtype == np.uint8 and vis.shape == (HEIGHT // 2, WIDTH // 2, 3)
         # Valid depths lie within the scene's bounds (user units, the scene was not rescaled by the writer).
-        valid = depth[depth > 0] * DEPTH_UNIT_SCALE
-        assert valid.size == 0 or (valid.min() >= 0.5 - 1e-3 and valid.max() <= 4.0 + 1e-3)
+        valid = depth[depth > 0] * scale
+        assert valid.size == 0 or (valid.min() >= 0.5 - scale and valid.max() <= 4.0 + scale)
     for video in ("video.mp4", "depth.mp4"):
         assert "h264" in video_codec(out / video)
         assert imageio_ffmpeg.count_frames_and_secs(str(out / video))[0] == 3
-    cams = json.loads((out / "cameras.json").read_text())
-    assert cams["depth_unit_scale_factor"] == DEPTH_UNIT_SCALE and cams["path"] == "orbit"
+    assert cams["path"] == "orbit"
     assert len(cams["frames"]) == 3 and cams["frames"][2]["file_path"] == "frames/00002.png"
     # The path goes back to the user's units: orbit frames sit on the input ring (radius 2, height 1).
     centres = np.array([f["transform_matrix"] for f in cams["frames"]])[:, :3, 3]
@@ -120,17 +122,19 @@ def test_render_writes_every_output_with_the_right_types(scene_and_checkpoint, t
 
 
 def test_depth_is_in_the_scene_units(scene_and_checkpoint, tmp_path):
-    # The same scene with every length doubled normalises to the same scene: the frames match and the depth
-    # PNGs (millimetres of the scene's unit) double.
+    # The same scene with every length doubled normalises to the same scene: the frames match and the depths
+    # read back through cameras.json's scale double.
     scene, ckpt = scene_and_checkpoint
     double = make_scene(tmp_path / "double", {"train": 6}, scale=2.0)
     assert _render(scene, ckpt, tmp_path / "a", "--frames", 1).exit_code == 0
     assert _render(double, ckpt, tmp_path / "b", "--frames", 1).exit_code == 0
-    depth_a = iio.imread(tmp_path / "a" / "depth" / "00000.png").astype(np.int64)
-    depth_b = iio.imread(tmp_path / "b" / "depth" / "00000.png").astype(np.int64)
+    scale_a, scale_b = (json.loads((tmp_path / d / "cameras.json").read_text())["depth_unit_scale_factor"]
+                        for d in "ab")
+    depth_a = iio.imread(tmp_path / "a" / "depth" / "00000.png") * scale_a
+    depth_b = iio.imread(tmp_path / "b" / "depth" / "00000.png") * scale_b
     valid = (depth_a > 0) & (depth_b > 0)
     assert valid.mean() > 0.5, "too few valid depth pixels to compare"
-    assert np.abs(depth_b[valid] - 2 * depth_a[valid]).max() <= 2  # rounding to whole millimetres
+    assert np.abs(depth_b[valid] - 2 * depth_a[valid]).max() <= scale_b + 2 * scale_a  # one step of rounding each
     rgb_a, rgb_b = (iio.imread(tmp_path / d / "frames" / "00000.png").astype(int) for d in "ab")
     assert np.abs(rgb_a - rgb_b).max() <= 1
 

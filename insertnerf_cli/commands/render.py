@@ -1,6 +1,7 @@
 """`insertnerf render`: a turntable or spiral video, frames, depth maps and cameras from a scene or a photo folder."""
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any, Callable
 
@@ -8,16 +9,21 @@ import click
 
 from ..checkpoint import BUNDLED_MODELS, DEFAULT_MODEL, bundled_checkpoint
 from ..errors import UserError
+from ..outputs import DEFAULT_DEPTH_FORMAT, DEPTH_FORMATS
 from ..pipeline import DEFAULT_FPS, DEFAULT_RESOLUTION, DEFAULT_VIEWS, RenderConfig, render_scene
+from ..pointcloud import DEFAULT_POINTS
 from ..paths import PATH_KINDS
 from .common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
 
 
-def model_options(func: Callable[..., Any]) -> Callable[..., Any]:
-    """--views, --resolution, --model, --checkpoint, --chunk, --exact: shared by render and eval."""
+def model_options(func: Callable[..., Any] | None = None, *, views_option: Callable | None = None) -> Any:
+    """--views, --resolution, --model, --checkpoint, --chunk, --exact: shared by render and eval (eval passes
+    its own --views, which takes a list)."""
+    if func is None:
+        return functools.partial(model_options, views_option=views_option)
     options = [
-        click.option("--views", type=click.IntRange(min=1), default=DEFAULT_VIEWS, show_default=True,
-                     help="Reference views per rendered image (the nearest ones)."),
+        views_option or click.option("--views", type=click.IntRange(min=1), default=DEFAULT_VIEWS, show_default=True,
+                                     help="Reference views per rendered image (the nearest ones)."),
         click.option("--resolution", type=click.IntRange(min=0), default=DEFAULT_RESOLUTION, show_default=True,
                      help="Long side of the rendered images in pixels; 0 = the photos' own size. Never upsamples: "
                      "a larger value gives the photos' size."),
@@ -52,8 +58,8 @@ def chosen_weights(model: str | None, checkpoint: Path | None) -> Path | None:
 @click.command("render")
 @click.argument("scene_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
-              help="Output folder (frames/, depth/, depth_vis/, video.mp4, depth.mp4, cameras.json); not inside "
-                   "SCENE_DIR. --overwrite removes only what render wrote there.")
+              help="Output folder (frames/, depth/, depth_vis/, video.mp4, depth.mp4, cameras.json, index.html); "
+                   "not inside SCENE_DIR. --overwrite removes only what render wrote there.")
 @click.option("--path", "path_kind", type=click.Choice(PATH_KINDS),
               help="Camera path; default: orbit for object-centric/360 captures, spiral for forward-facing ones; "
                    "input re-renders the input poses.")
@@ -64,17 +70,28 @@ def chosen_weights(model: str | None, checkpoint: Path | None) -> Path | None:
 @click.option("--finetune", "finetune_minutes", type=FiniteFloat(min=0, min_open=True),
               help="First fine-tune the weights on SCENE_DIR's own photos for this many minutes (kept in "
                    "OUT/finetune.pt and reused by a re-run; see `insertnerf finetune`).")
+@click.option("--depth-format", type=click.Choice(DEPTH_FORMATS), default=DEFAULT_DEPTH_FORMAT, show_default=True,
+              help="depth/ files: png16 = uint16 PNGs, depth = value x cameras.json's depth_unit_scale_factor "
+                   "(chosen per render so that no depth is clipped); npy = float32 in the scene's units, NaN "
+                   "where invalid.")
+@click.option("--pointcloud", is_flag=True,
+              help="Also write pointcloud.ply: the coloured points of every frame's depth (where opacity >= 0.5), "
+                   "in the scene's units and axes.")
+@click.option("--pointcloud-points", type=click.IntRange(min=1), default=DEFAULT_POINTS, show_default=True,
+              help="At most this many points in pointcloud.ply (a uniform random subset beyond).")
 @model_options
 @device_option
 @overwrite_option
 @user_errors
 def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float, views: int,
            resolution: int, model: str, checkpoint: Path | None, chunk: int, exact: bool, device: str,
-           overwrite: bool, finetune_minutes: float | None) -> None:
+           overwrite: bool, finetune_minutes: float | None, depth_format: str, pointcloud: bool,
+           pointcloud_points: int) -> None:
     """Render novel views of SCENE_DIR into --out: frames, depth maps, videos and cameras.
 
-    SCENE_DIR is a scene in any supported format, or a plain folder of photos (their poses are then estimated
-    with COLMAP first and cached in OUT/poses/). Re-running the same command resumes an interrupted render.
+    SCENE_DIR is a scene in any supported format, or a plain folder of photos, or a COLMAP project whose images/
+    holds the photos (their poses are then estimated with COLMAP first and cached in OUT/poses/). OUT/index.html
+    shows the result. Re-running the same command resumes an interrupted render.
 
     \b
     Example:
@@ -82,5 +99,6 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
     """
     config = RenderConfig(path=path_kind, frames=frames, fps=fps, resolution=resolution or None, views=views,
                           checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)),
-                          chunk=chunk, exact=exact, overwrite=overwrite, finetune_minutes=finetune_minutes)
+                          chunk=chunk, exact=exact, overwrite=overwrite, finetune_minutes=finetune_minutes,
+                          depth_format=depth_format, pointcloud_points=pointcloud_points if pointcloud else None)
     click.echo(render_scene(scene_dir, out_dir, config).line())

@@ -1,0 +1,164 @@
+"""The library behind `insertnerf eval` (no click here): held-out views (the test split, else every 8th)
+rendered from the nearest of the other views -> PSNR/SSIM; for a list of reference-view counts, every count on the
+same held-out views in one run (each reference view encoded once per held-out view, whatever the counts).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from .atomic import write_json
+from .config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
+from .errors import UserError
+from .eval_outputs import REPORT_HTML, check_eval_outputs, prepare_side_by_sides, side_by_side, side_by_side_name
+from .metrics import SSIM_WINDOW, psnr, ssim
+from .outputs import write_png
+from .view_renderer import ViewRenderer, checkpoint_path, load_model
+from .views import held_out_views
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Settings of one `eval` run (resolution, checkpoint, device, chunk, exact as in RenderConfig).
+
+    Attributes:
+        views: reference views per held-out view, or a tuple of counts to score each of (same held-out views).
+        out_dir: folder for side-by-side images (render | truth | error) and report.html, or None for none.
+        json_path: file for the report (keys psnr, ssim, views; for several counts: by_count), or None.
+        max_views: evaluate at most this many held-out views, evenly spread (None = all).
+        overwrite: replace an existing JSON report and side-by-side images.
+    """
+
+    views: int | tuple[int, ...] = DEFAULT_VIEWS
+    resolution: int | None = DEFAULT_RESOLUTION
+    checkpoint: Path | None = None
+    device: str = "cpu"
+    chunk: int | None = None
+    exact: bool = False
+    out_dir: Path | None = None
+    json_path: Path | None = None
+    max_views: int | None = None
+    overwrite: bool = False
+
+    @property
+    def counts(self) -> tuple[int, ...]:
+        """The reference-view counts to score, ascending, each once."""
+        counts = (self.views,) if isinstance(self.views, int) else tuple(self.views)
+        if not counts or min(counts) < 1:
+            raise ValueError(f"reference-view counts must be >= 1, got {self.views!r}")
+        return tuple(sorted(set(counts)))
+
+
+@dataclass(frozen=True)
+class ViewScore:
+    """One held-out view: its index and file name, scores, and the reference views it was rendered from."""
+
+    index: int
+    name: str
+    psnr: float
+    ssim: float
+    references: tuple[int, ...]
+    seconds: float
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class EvalReport:
+    """Mean PSNR (dB) and SSIM over the held-out views at one reference-view count, and each view's record."""
+
+    scene: Path
+    height: int
+    width: int
+    psnr: float
+    ssim: float
+    views: tuple[ViewScore, ...]
+    reference_views: int = DEFAULT_VIEWS
+
+    def to_json(self) -> dict:
+        """JSON-ready dict with keys psnr, ssim, views (infinite PSNR of a perfect view is written as null)."""
+        views = [{**asdict(v), "psnr": _finite(v.psnr), "references": list(v.references)} for v in self.views]
+        return {"psnr": _finite(self.psnr), "ssim": self.ssim, "views": views, "scene": str(self.scene),
+                "height": self.height, "width": self.width, "reference_views": self.reference_views}
+
+
+@dataclass(frozen=True)
+class EvalRun:
+    """One `eval` run: a report per reference-view count (ascending), its settings and wall time."""
+
+    config: EvalConfig
+    checkpoint: Path
+    reports: tuple[EvalReport, ...]
+    wall_s: float
+
+    def to_json(self) -> dict:
+        """One count: the report's keys (psnr, ssim, views, ...). Several: reference_views (the counts) and
+        by_count (one report each, ascending), with the scene and size."""
+        if len(self.reports) == 1:
+            return self.reports[0].to_json()
+        first = self.reports[0]
+        return {"scene": str(first.scene), "height": first.height, "width": first.width,
+                "reference_views": [r.reference_views for r in self.reports],
+                "by_count": [r.to_json() for r in self.reports]}
+
+
+def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
+    """The report of a one-count eval (see :func:`run_eval`)."""
+    if len(config.counts) != 1:
+        raise ValueError("evaluate_scene scores one reference-view count; use run_eval for several")
+    return run_eval(scene_dir, config).reports[0]
+
+
+def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
+    """Render each held-out view from its nearest non-held-out views at every count of ``config.counts``, score
+    it against the photo, and write the side-by-sides, report.html and JSON report that ``config`` asks for."""
+    from .scenes import load_scene, normalize_scene
+
+    started = time.perf_counter()
+    counts = config.counts
+    out_dir = Path(config.out_dir) if config.out_dir is not None else None
+    check_eval_outputs(Path(scene_dir), config.checkpoint, config.json_path, out_dir, config.overwrite)
+    scene, _ = normalize_scene(load_scene(Path(scene_dir)))
+    held = held_out_views(scene, config.max_views)
+    size = scene.size_for(config.resolution)
+    if min(size) < SSIM_WINDOW:
+        raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
+    weights = checkpoint_path(config.checkpoint)
+    renderer = ViewRenderer(load_model(weights, config.device), scene, size, max(counts), config.device,
+                            config.chunk, config.exact)
+    prepare_side_by_sides(out_dir, held, counts)
+    scores: dict[int, list[ViewScore]] = {n: [] for n in counts}
+    for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):
+        camera = scene.cameras.subset([index]).rescale(*size)
+        truth = scene.load_image(index, *size).astype(np.float64)
+        # Most references first: the smaller counts' nearest views are among them, already encoded.
+        for n in reversed(counts):
+            start = time.perf_counter()
+            out, refs = renderer.render(camera, float(scene.near[index]), float(scene.far[index]), held, n)
+            if set(refs) & set(held):  # nearest_views honours exclude; this guards the metric's meaning
+                raise RuntimeError(f"held-out views {sorted(set(refs) & set(held))} were chosen as references")
+            render = out.rgb.double().cpu().numpy()
+            scores[n].append(ViewScore(index, scene.names[index], psnr(render, truth), ssim(render, truth),
+                                       tuple(refs), time.perf_counter() - start))
+            if out_dir is not None:
+                write_png(out_dir / side_by_side_name(index, n, len(counts) > 1), side_by_side(render, truth))
+    reports = tuple(EvalReport(Path(scene_dir), size[0], size[1], float(np.mean([s.psnr for s in scores[n]])),
+                               float(np.mean([s.ssim for s in scores[n]])), tuple(scores[n]), n) for n in counts)
+    run = EvalRun(config, weights, reports, time.perf_counter() - started)
+    if out_dir is not None:
+        from .report.eval_page import eval_page
+
+        from .atomic import write_bytes
+
+        write_bytes(out_dir / REPORT_HTML, eval_page(run).encode("utf-8"))
+    if config.json_path is not None:
+        write_json(config.json_path, run.to_json())
+    return run

@@ -1,0 +1,89 @@
+"""Rendering target cameras of a normalised scene from their nearest reference views (shared by `render` and
+`eval`; no click here). Encodings are kept per reference view, so consecutive frames, or the same held-out view
+at several reference-view counts, encode each view once."""
+from __future__ import annotations
+
+from collections import OrderedDict
+from pathlib import Path
+
+import torch
+
+from .cameras import Cameras
+from .errors import UserError
+
+# Rays per network call by device. CPU: small chunks stay in cache (render.render_image, bench/model_speed.py).
+# CUDA: a GPU needs far more work per call than 128 rays; 4096 rays of 64+64 samples and 10 views hold about
+# 1 GB of per-view tensors. Not measured on a GPU yet (none was lent to issue 11).
+DEFAULT_CHUNKS = {"cpu": 128, "cuda": 4096}
+# Consecutive frames of a path mostly share their reference views: encodings are kept per view, for this many
+# times --views views, so a frame encodes only the views its predecessors did not use.
+ENCODED_VIEWS_KEPT = 2
+
+
+def checkpoint_path(checkpoint: Path | None) -> Path:
+    """The given weights, or the bundled default generator's file."""
+    from .checkpoint import bundled_checkpoint
+
+    return Path(checkpoint) if checkpoint is not None else bundled_checkpoint()
+
+
+def load_model(checkpoint: Path, device: str) -> torch.nn.Module:
+    from .checkpoint import load_model as load
+
+    return load(checkpoint, torch.device(device))[0]
+
+
+class ViewRenderer:
+    """Renders target cameras of a normalised scene from their nearest reference views, caching encodings.
+
+    Args:
+        model: the generator; scene: the normalised Scene; size: (height, width) of the rendered images.
+        views: reference views per image (a render() call may ask for another count).
+        device, chunk, exact: as in RenderConfig (chunk None = DEFAULT_CHUNKS of the device).
+    """
+
+    def __init__(self, model: torch.nn.Module, scene, size: tuple[int, int], views: int, device: str = "cpu",
+                 chunk: int | None = None, exact: bool = False) -> None:
+        self.model = model
+        self.scene, self.size, self.k = scene, size, views
+        self.chunk = chunk or DEFAULT_CHUNKS.get(torch.device(device).type, DEFAULT_CHUNKS["cpu"])
+        from .render import EXACT, Shortcuts
+
+        self.shortcuts = EXACT if exact else Shortcuts()
+        self.method = "dist" if scene.layout == "forward" else "vector"
+        self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
+
+    def references(self, target_c2w: torch.Tensor, exclude: list[int], views: int | None = None) -> list[int]:
+        from .views import nearest_views
+
+        refs = nearest_views(target_c2w, self.scene.cameras.c2w, views or self.k, self.method, exclude=exclude)
+        if not refs:
+            raise UserError(f"{self.scene.root}: no reference views left to render from")
+        return refs
+
+    def _encoded(self, refs: list[int]):
+        from .model import EncodedViews, SourceViews
+
+        key = sorted(refs)
+        missing = [i for i in key if i not in self.cache]
+        if missing:
+            images, cams = self.scene.load_views(missing, *self.size)
+            param = next(self.model.parameters())
+            views = SourceViews(images, cams).to(device=param.device, dtype=param.dtype)
+            with torch.inference_mode():
+                encoded = self.model.encode(views)
+            for row, index in enumerate(missing):
+                self.cache[index] = encoded.select([row])
+        for index in key:
+            self.cache.move_to_end(index)
+        while len(self.cache) > ENCODED_VIEWS_KEPT * max(self.k, len(key)):
+            self.cache.popitem(last=False)
+        return EncodedViews.join([self.cache[i] for i in key])
+
+    def render(self, camera: Cameras, near: float, far: float, exclude: list[int], views: int | None = None):
+        """(ImageOutput of ``camera`` (1), the reference indices used) from its ``views`` (default: the
+        renderer's count) nearest references; never uses an index in ``exclude``."""
+        from .render import render_image
+
+        refs = self.references(camera.c2w[0], exclude, views)
+        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts), refs
