@@ -21,7 +21,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli.checkpoint import bundled_checkpoint, load_model  # noqa: E402
-from insertnerf_cli.pipeline import EvalConfig, _Renderer  # noqa: E402
+from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 from insertnerf_cli.rays import rays_from_pixels  # noqa: E402
 from insertnerf_cli.scenes import load_scene, normalize_scene  # noqa: E402
 from insertnerf_cli.views import held_out_views  # noqa: E402
@@ -53,14 +53,14 @@ def curve(scene_dir: Path, counts: list[int], checkpoint: Path, exact: bool, max
     model = load_model(checkpoint, torch.device("cpu"))[0]
     table = {k: {r: [] for r in (*REGIONS, "opacity")} for k in counts}
     worst = None
+    renderer = ViewRenderer(model, scene, size, max(counts), exact=exact)
     for index in held:
         truth = scene.load_image(index, *size).astype(np.float64)
         camera = scene.cameras.subset([index]).rescale(*size)
         near, far = float(scene.near[index]), float(scene.far[index])
         masks, errors = None, {}
         for k in counts:
-            renderer = _Renderer(model, scene, EvalConfig(views=k, exact=exact), size)
-            out, refs = renderer.render(camera, near, far, exclude=held)
+            out, refs = renderer.render(camera, near, far, exclude=held, views=k)
             rgb = out.rgb.double().numpy()
             errors[k] = ((rgb - truth) ** 2)
             if masks is None:
@@ -89,7 +89,7 @@ def inspect_ray(model, scene, held, k, index, pixel, camera, near, far, size) ->
     view's colour there matches the photo: the ghosting diagnosis."""
     from insertnerf_cli.model.projection import project_samples
 
-    renderer = _Renderer(model, scene, EvalConfig(views=k), size)
+    renderer = ViewRenderer(model, scene, size, k)
     refs = renderer.references(camera.c2w[0], held)
     encoded = renderer._encoded(refs)
     row, col = int(pixel[0]), int(pixel[1])
