@@ -19,8 +19,8 @@ from .common import overwrite_option, user_errors
 @click.option("--resolution", type=click.IntRange(min=8), default=200, show_default=True,
               help="Long side of the images in pixels (the aspect ratio is drawn per scene).")
 @click.option("--square", is_flag=True, help="Square images only (like NeRF-Synthetic).")
-@click.option("--layout", type=click.Choice(["object", "forward", "360", "mixed"]), default="mixed",
-              show_default=True, help="Camera layout; mixed draws one of the three per scene.")
+@click.option("--layout", type=click.Choice(["object", "forward", "360", "handheld", "mixed"]), default="mixed",
+              show_default=True, help="Camera layout; mixed draws one of the four per scene.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Dataset seed: the same seed and options give byte-identical images.")
 @click.option("--workers", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,

@@ -1,5 +1,5 @@
 """Surface colour at ray hits: textures mapped in object space, Lambert + Blinn-Phong lights with cast
-shadows (one batch of shadow rays per light), a sky/ground ambient term, and unlit sky domes.
+shadows (one batch of shadow rays per light), a sky/ground ambient term, and the unlit sky at infinity.
 
 Radiance is linear RGB in units where a white Lambertian surface facing a light of colour 1 has radiance 1
 (the 1/pi of the BRDF is folded into the light colours).
@@ -33,24 +33,16 @@ def shade(scene: SceneMesh, world: World, hits: Hits, directions: np.ndarray, fo
     material_of = scene.object_material[hits.objects]  # [H]
     local, weights = _object_frame(scene, hits)
     albedo = np.zeros((len(hits.t), 3), dtype=np.float32)
-    emissive = np.zeros(len(hits.t), dtype=bool)
     order = np.argsort(material_of, kind="stable")  # hits grouped by material: one slice each
     starts = np.searchsorted(material_of[order], np.arange(len(world.materials) + 1))
     for m, material in enumerate(world.materials):
         sel = order[starts[m]:starts[m + 1]]
         if len(sel) == 0:
             continue
-        if material.mapping == "sky":
-            albedo[sel] = _sky_albedo(material, hits.points[sel], footprint[sel] / hits.t[sel])
-            emissive[sel] = True
-        else:
-            albedo[sel] = _triplanar(material, local[sel], weights[sel], footprint[sel])
-    radiance = albedo.copy()
-    lit = np.flatnonzero(~emissive)
-    surface = Surface(albedo[lit], *(np.array([getattr(mat, key) for mat in world.materials])[material_of[lit]]
-                                     for key in ("specular", "shininess", "metallic")))
-    radiance[lit] = _lit(scene, world, surface, hits, lit, view[lit])
-    return radiance
+        albedo[sel] = _triplanar(material, local[sel], weights[sel], footprint[sel])
+    surface = Surface(albedo, *(np.array([getattr(mat, key) for mat in world.materials])[material_of]
+                                for key in ("specular", "shininess", "metallic")))
+    return _lit(scene, world, surface, hits, np.arange(len(hits.t)), view)
 
 
 @dataclass(frozen=True)
@@ -99,12 +91,15 @@ def _triplanar(material: Material, local: np.ndarray, weights: np.ndarray, footp
     return albedo
 
 
-def _sky_albedo(material: Material, points: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Sky colour [S, 3] by direction from the dome's centre: u = azimuth, v = elevation above the horizon."""
-    direction = points / _norm(points)[:, None]
+def sky_radiance(material: Material, directions: np.ndarray, focal: float) -> np.ndarray:
+    """Colour [S, 3] of the sky at infinity along ray directions [S, 3] (camera-z = 1) of a camera of focal
+    length ``focal`` pixels: u = azimuth, v = elevation above the horizon (below it: the horizon's colour)."""
+    length = _norm(directions)
+    direction = directions / length[:, None]
     azimuth = np.arctan2(direction[:, 1], direction[:, 0]) / (2 * np.pi)
     elevation = np.clip(np.arcsin(np.clip(direction[:, 2], -1, 1)) / (np.pi / 2), 0.0, 0.999)
     uv = np.stack([azimuth * material.tile, elevation], axis=1)
+    angle = 1.0 / (focal * length)  # angle one pixel spans, radians
     return sample(material.texture, uv, angle * material.tile / (2 * np.pi))
 
 

@@ -93,7 +93,9 @@ class Stage:
         limit: cameras stay within this distance of ``center`` (inside the room or sky dome, clear of the
             furniture and scenery along its edge).
         ceiling: cameras stay below this height (a room's ceiling).
-        depth: forward layout: distance from the camera plane to the nearest subject geometry.
+        depth: forward layout: distance from the camera plane to the nearest subject geometry; handheld
+            layout: distance from the camera plane to the subject.
+        style: handheld layout: "grid" (forward-facing, hand-held) or "orbit" (a phone walking around).
     """
 
     center: np.ndarray
@@ -102,6 +104,7 @@ class Stage:
     limit: float = np.inf
     ceiling: float = np.inf
     depth: float = 0.0
+    style: str = ""
 
 
 @dataclass(frozen=True)
@@ -112,6 +115,8 @@ class World:
         background: sRGB colour [3] for rays that hit nothing (enclosed worlds never show it).
         ambient_sky, ambient_ground: linear RGB ambient light from above and from below.
         description: what was drawn, for the scene record (JSON-ready).
+        sky: environment at infinity, looked up by ray direction, for rays that leave the scene (None: they
+            show ``background``). Either way such pixels have no surface: depth 0.
     """
 
     objects: tuple[Placed, ...]
@@ -122,6 +127,7 @@ class World:
     ambient_sky: np.ndarray
     ambient_ground: np.ndarray
     description: dict = field(default_factory=dict)
+    sky: Material | None = None
 
 
 # ---------------------------------------------------------------------------------------------- random parts
