@@ -39,7 +39,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_same_seed_gives_identical_bytes_and_another_seed_does_not(tmp_path):
-    options = _options(capture=CaptureOptions(noise=True, jitter=True, jpeg=True))
+    options = _options(capture=CaptureOptions(noise=True, jitter=True, jpeg=True, photo=True))
     generate_dataset(tmp_path / "a", options, workers=1)
     generate_dataset(tmp_path / "b", options, workers=2)  # worker processes must not change a byte
     a, b = _files(tmp_path / "a"), _files(tmp_path / "b")

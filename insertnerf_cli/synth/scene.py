@@ -119,10 +119,12 @@ def render_scene(spec: SceneSpec, folder: Path) -> RenderedScene:
     settings = draw_settings(stream(spec.seed, spec.index, _CAPTURE), spec.capture)
     splits = scene_splits(spec)
     depth_range = [np.inf, 0.0]
+    captured: dict[str, list[dict]] = {}
     for split, indices in splits.items():
         for k, i in enumerate(indices):
             view = render_view(mesh, world, cameras[[i]])
-            rgb = develop(view.radiance, settings, stream(spec.seed, spec.index, _VIEW, i))
+            rgb, capture = develop(view.radiance, settings, stream(spec.seed, spec.index, _VIEW, i))
+            captured.setdefault(split, []).append(capture.to_json())
             _write_png(folder / split / f"r_{k:03d}.png", rgb[..., ::-1])
             _write_png(folder / "depth" / split / f"r_{k:03d}.png", encode_depth(view.depth))
             valid = view.depth[view.depth > 0]
@@ -134,7 +136,7 @@ def render_scene(spec: SceneSpec, folder: Path) -> RenderedScene:
         if indices:
             _write_transforms(folder, split, cameras[indices], spec, near, far, facing)
     record = {"spec": spec.to_json(), "world": world.description, "exposure": exposure,
-              "frame": asdict(frame), "capture": settings.to_json(), "near": near, "far": far}
+              "frame": asdict(frame), "capture": settings.to_json(), "views": captured, "near": near, "far": far}
     (folder / "scene.json").write_text(json.dumps(record, indent=2) + "\n")
     return RenderedScene(spec.name, spec.views, time.perf_counter() - start, near, far)
 
