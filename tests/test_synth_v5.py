@@ -9,14 +9,16 @@ import pytest
 
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.scenes.geometry import detect_layout
-from insertnerf_cli.synth import CaptureOptions, SceneSpec
+from insertnerf_cli.errors import UserError
+from insertnerf_cli.synth import (GENERATOR_VERSION, CaptureOptions, SceneSpec, SynthOptions, build_dataset,
+                                  generate_dataset)
 from insertnerf_cli.synth.compose import COMPOSERS
 from insertnerf_cli.synth.dataset import render_into
 from insertnerf_cli.synth.layouts import RIGS, random_frame
 from insertnerf_cli.synth.raycast import build_scene_mesh
 from insertnerf_cli.synth.scene import DEPTH_SCALE, scene_cameras, scene_world
 
-from test_synth import _depth
+from test_synth import _depth, _files
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -135,3 +137,24 @@ def test_handheld_orbit_varies_height_and_distance_around_the_subject():
         uv, z = cameras.project(cameras.c2w.new_tensor(world.stage.center)[None])
         assert (z > 0).all()
         assert (uv[:, 0] - uv.new_tensor([cameras.width / 2, cameras.height / 2])).abs().max() < cameras.width / 2
+
+
+def test_handheld_photo_scenes_are_identical_whatever_the_workers(tmp_path):
+    options = SynthOptions(scenes=2, views=4, test_views=1, resolution=32, layout="handheld", seed=5,
+                           capture=CaptureOptions(photo=True))
+    generate_dataset(tmp_path / "a", options, workers=1)
+    generate_dataset(tmp_path / "b", options, workers=2)
+    assert _files(tmp_path / "a") == _files(tmp_path / "b")
+
+
+def test_a_synth_4_dataset_is_recognised_and_refused_without_overwrite(tmp_path):
+    options = SynthOptions(scenes=1, views=2, test_views=1, resolution=16, layout="object", seed=1)
+    out = tmp_path / "d"
+    generate_dataset(out, options, workers=1)
+    manifest = json.loads((out / "manifest.json").read_text())
+    (out / "manifest.json").write_text(json.dumps({**manifest, "version": "synth-4"}))  # as synth-4 wrote it
+    with pytest.raises(UserError, match="another generator version"):
+        generate_dataset(out, options, workers=1)
+    assert json.loads((out / "manifest.json").read_text())["version"] == "synth-4"  # kept as it was
+    build_dataset(out, options, workers=1, overwrite=True, progress=False)
+    assert json.loads((out / "manifest.json").read_text())["version"] == GENERATOR_VERSION == "synth-5"

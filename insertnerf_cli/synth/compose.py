@@ -145,7 +145,7 @@ def compose_handheld(rng: np.random.Generator) -> World:
         enclosure = enclose(b, rng, floor, -1.8 * _REACH, 1.8 * _REACH)
         stage = Stage(np.zeros(3), 1.0, floor, min(enclosure.limit, 5.0), ceiling=enclosure.ceiling, style="orbit")
     return b.world(scene_lights(rng, enclosure), stage, np.zeros(3), ambient=float(rng.uniform(0.15, 0.4)),
-                   layout="handheld", capture=stage.style, surroundings=enclosure.kind, extras=extras)
+                   layout="handheld", rig=stage.style, surroundings=enclosure.kind, extras=extras)
 
 
 COMPOSERS = {"object": compose_object, "360": compose_360, "forward": compose_forward, "handheld": compose_handheld}

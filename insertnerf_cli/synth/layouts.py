@@ -178,7 +178,7 @@ def phone_orbit_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views:
     phases = rng.uniform(0, 2 * np.pi, 2)
     swing = rng.uniform(0.08, 0.25) * np.sin(2 * np.pi * waves[0] * t + phases[0])
     distance = np.clip(base * np.exp(swing), 1.8 * stage.radius, stage.limit)
-    elevation = np.radians(rng.uniform(5, 35) + rng.uniform(3, 20) * (1 + np.sin(2 * np.pi * waves[1] * t + phases[1]))
+    elevation = np.radians(rng.uniform(5, 35) + rng.uniform(3, 10) * (1 + np.sin(2 * np.pi * waves[1] * t + phases[1]))
                            + rng.normal(0, 2, views))
     eyes = stage.center + distance[:, None] * np.stack(
         [np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)], axis=1)
