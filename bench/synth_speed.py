@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from insertnerf_cli.synth import SynthOptions, build_dataset
+from insertnerf_cli.synth import GENERATOR_VERSION, CaptureOptions, SynthOptions, build_dataset
 
 
 def _cpu_seconds() -> float:
@@ -42,19 +42,22 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=8)
     parser.add_argument("--views", type=int, default=50)
     parser.add_argument("--resolution", type=int, default=200)
-    parser.add_argument("--layout", default="mixed", choices=["object", "forward", "360", "mixed"])
+    parser.add_argument("--layout", default="mixed", choices=["object", "forward", "360", "handheld", "mixed"])
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--square", action="store_true", help="square images (200x200 at --resolution 200)")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--photo", action="store_true", help="with the --photo capture effects")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     aspects = (1.0,) if args.square else SynthOptions().aspects
-    print(f"cores: {os.cpu_count()}, workers: {args.workers}, load average before: {os.getloadavg()[0]:.2f}")
+    print(f"generator {GENERATOR_VERSION}, cores: {os.cpu_count()}, workers: {args.workers}, "
+          f"load average before: {os.getloadavg()[0]:.2f}")
     rates, cpus = [], []
     for r in range(args.repeats):
         # Another seed per repeat: the median is over different scenes, not a warm cache of the same ones.
         options = SynthOptions(scenes=args.scenes, views=args.views, test_views=max(1, args.views // 8),
-                               resolution=args.resolution, layout=args.layout, seed=args.seed + r, aspects=aspects)
+                               resolution=args.resolution, layout=args.layout, seed=args.seed + r, aspects=aspects,
+                               capture=CaptureOptions(photo=args.photo))
         rate, cpu = measure(options, args.workers)
         rates.append(rate)
         cpus.append(cpu)

@@ -19,8 +19,8 @@ from .common import overwrite_option, user_errors
 @click.option("--resolution", type=click.IntRange(min=8), default=200, show_default=True,
               help="Long side of the images in pixels (the aspect ratio is drawn per scene).")
 @click.option("--square", is_flag=True, help="Square images only (like NeRF-Synthetic).")
-@click.option("--layout", type=click.Choice(["object", "forward", "360", "mixed"]), default="mixed",
-              show_default=True, help="Camera layout; mixed draws one of the three per scene.")
+@click.option("--layout", type=click.Choice(["object", "forward", "360", "handheld", "mixed"]), default="mixed",
+              show_default=True, help="Camera layout; mixed draws one of the four per scene.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Dataset seed: the same seed and options give byte-identical images.")
 @click.option("--workers", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,
@@ -29,10 +29,13 @@ from .common import overwrite_option, user_errors
 @click.option("--jitter/--no-jitter", default=False, show_default=True,
               help="Exposure and white-balance jitter between views.")
 @click.option("--jpeg/--no-jpeg", default=False, show_default=True, help="JPEG compression artefacts.")
+@click.option("--photo/--no-photo", default=False, show_default=True,
+              help="Look like phone photos: per-view exposure (up to +-0.5 stop) and white balance, slight "
+                   "defocus or motion blur, vignetting, plus sensor noise and JPEG.")
 @overwrite_option
 @user_errors
 def synth(out_dir: Path, workers: int, overwrite: bool, square: bool, noise: bool, jitter: bool, jpeg: bool,
-          **options: object) -> None:
+          photo: bool, **options: object) -> None:
     """Render SCENES procedural scenes with exact cameras and depth into OUT_DIR (Blender format).
 
     Re-running the same command resumes an interrupted run; finished scenes are kept.
@@ -46,7 +49,7 @@ def synth(out_dir: Path, workers: int, overwrite: bool, square: bool, noise: boo
     if options["test_views"] is None:
         options["test_views"] = max(1, int(options["views"]) // 8)  # type: ignore[call-overload]
     config = SynthOptions(**options, aspects=(1.0,) if square else SynthOptions().aspects,  # type: ignore[arg-type]
-                          capture=CaptureOptions(noise=noise, jitter=jitter, jpeg=jpeg))
+                          capture=CaptureOptions(noise=noise, jitter=jitter, jpeg=jpeg, photo=photo))
     run = build_dataset(out_dir, config, workers=workers, overwrite=overwrite)
     speed = f" at {run.views_per_second:.1f} views/s" if run.rendered else ""
     kept = f" ({run.skipped} already there)" if run.skipped else ""

@@ -27,12 +27,12 @@ from .capture import CaptureOptions
 from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, render_scene
 
 # Bump when a change makes the same seed and options give other pixels.
-GENERATOR_VERSION = "synth-4"
+GENERATOR_VERSION = "synth-5"
 MANIFEST = "manifest.json"
 SCENE_FILE = "scene.json"  # written last into a scene's temporary folder: a scene folder with it is finished
 _TEMP_PREFIX = ".tmp-"
 _OWNER = "synth"  # the name of its list in an output record (outdir.py)
-LayoutChoice = Literal["object", "forward", "360", "mixed"]
+LayoutChoice = Literal["object", "forward", "360", "handheld", "mixed"]
 # What datasets of versions without output records hold (the only names --overwrite removes there).
 _LEGACY_SCENE_DIRS = "scene_[0-9]*/"
 _LEGACY_SCENE_FILES = ("*/r_[0-9]*.png", "depth/*/r_[0-9]*.png", "transforms_*.json", SCENE_FILE, "depth/*/",
@@ -47,7 +47,7 @@ class SynthOptions:
         scenes: number of scenes.
         views: views per scene, of which ``test_views`` are held out (transforms_test.json).
         resolution: long side of the images, pixels; the short side follows the drawn aspect ratio.
-        layout: "object", "forward", "360", or "mixed" (each scene draws one of the three).
+        layout: "object", "forward", "360", "handheld", or "mixed" (each scene draws one of the four).
         seed: dataset seed (>= 0); scene i uses the streams of (seed, i).
         aspects: aspect ratios (long / short) drawn per scene; (1.0,) gives square images.
         capture: sensor noise, exposure/white-balance jitter, JPEG compression (all off by default).

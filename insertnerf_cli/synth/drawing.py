@@ -6,6 +6,7 @@ import string
 import cv2
 import numpy as np
 
+from .natural import natural_texture
 from .textures import PATTERNS, SIZE, Texture, colorize, fbm, palette, random_color, srgb_to_linear
 
 _FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_COMPLEX, cv2.FONT_HERSHEY_TRIPLEX,
@@ -108,10 +109,12 @@ def flat_texture(rgb: np.ndarray) -> Texture:
 
 
 def random_texture(rng: np.random.Generator, size: int = SIZE) -> tuple[Texture, str]:
-    """A random texture (linear RGB mip pyramid) and a short description; 10% are plain colours."""
-    if rng.random() < 0.1:
+    """A random texture (linear RGB mip pyramid) and a short description: 10% plain colours, 40% with the
+    statistics of photographs (natural.py), 50% layered patterns."""
+    draw = rng.random()
+    if draw < 0.1:
         return flat_texture(random_color(rng)), "flat"
-    image, name = texture_image(rng, size)
+    image, name = natural_texture(rng, size) if draw < 0.5 else texture_image(rng, size)
     return Texture.from_image(srgb_to_linear(image)), name
 
 

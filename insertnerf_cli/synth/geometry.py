@@ -206,7 +206,25 @@ def plant(rng: np.random.Generator) -> Shape:
     return Shape(trimesh.util.concatenate(parts), smooth=True, kind="plant")
 
 
-THIN: dict[str, Callable[[np.random.Generator], Shape]] = {"rods": rods, "plate": plate, "plant": plant}
+def fence(rng: np.random.Generator) -> Shape:
+    """A fence or railing along x, one unit long: posts, 1-3 rails, and maybe thin pickets in between."""
+    height = rng.uniform(0.25, 0.5)
+    posts = int(rng.integers(3, 8))
+    thickness = rng.uniform(0.006, 0.02)
+    xs = np.linspace(-0.5, 0.5, posts)
+    parts = [creation.box(extents=(2 * thickness, 2 * thickness, height)) for _ in xs]
+    for part, x in zip(parts, xs):
+        part.apply_translation((x, 0.0, height / 2))
+    for level in rng.uniform(0.3, 1.0, int(rng.integers(1, 4))):
+        parts.append(_rod(np.array([-0.5, 0, level * height]), np.array([0.5, 0, level * height]), thickness * 0.7))
+    if rng.random() < 0.5:  # pickets
+        for x in np.linspace(-0.5, 0.5, int(rng.integers(8, 40))):
+            parts.append(_rod(np.array([x, 0, 0.0]), np.array([x, 0, height * 0.9]), thickness * 0.5))
+    return Shape(trimesh.util.concatenate(parts), smooth=False, kind="fence")
+
+
+THIN: dict[str, Callable[[np.random.Generator], Shape]] = {"rods": rods, "plate": plate, "plant": plant,
+                                                           "fence": fence}
 
 
 # ---------------------------------------------------------------------------------------------- scenery
@@ -244,10 +262,3 @@ def room_faces(extents: np.ndarray) -> list[tuple[str, trimesh.Trimesh]]:
     faces = {"floor": [0, 1, 2, 3], "ceiling": [4, 7, 6, 5], "wall-s": [0, 4, 5, 1], "wall-e": [1, 5, 6, 2],
              "wall-n": [2, 6, 7, 3], "wall-w": [3, 7, 4, 0]}
     return [(name.split("-")[0], _quad(c[idx])) for name, idx in faces.items()]
-
-
-def sky_dome(radius: float) -> trimesh.Trimesh:
-    """An inward-facing sphere around the origin; rays that leave the scene end on it."""
-    mesh = creation.icosphere(subdivisions=3, radius=radius)
-    mesh.invert()
-    return mesh

@@ -1,8 +1,10 @@
-"""Camera rigs for the three layouts, as :class:`~insertnerf_cli.cameras.Cameras` (OpenCV c2w, world z up).
+"""Camera rigs for the four layouts, as :class:`~insertnerf_cli.cameras.Cameras` (OpenCV c2w, world z up).
 
 * object: cameras on a sphere or upper hemisphere around the subject, looking at it (NeRF-Synthetic).
 * 360: a hand-held orbit around the subject at a wobbling height and distance, inside the enclosure.
 * forward: cameras on a small plane facing +y, parallel or converging (LLFF).
+* handheld: a hand-held forward-facing grid with a small baseline (LLFF's own captures), or a phone walking
+  around the subject at varying height and distance (a full loop or part of one).
 
 Every rig shares one pinhole K with fx = fy and the principal point at the image centre; the focal length
 and the aspect ratio are drawn per scene.
@@ -136,7 +138,63 @@ def forward_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int
     return _cameras(frame, look_at(eyes, targets, np.radians(rng.normal(0, 1.5, views))))
 
 
-RIGS = {"object": object_rig, "360": orbit_rig, "forward": forward_rig}
+def handheld_grid_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int) -> Cameras:
+    """A person stepping a phone over a rough plane at ``stage.center`` facing the subject at (0, depth, 0):
+    serpentine rows of a jittered grid or a loose scatter, 10-30% of the subject distance wide (a few % of
+    the scene's depth), the plane rough by 10% of its width along the view, optical axes roughly parallel
+    or converging on the subject, with 0.5-2.5 degrees of hand-held rotation per view."""
+    width = stage.depth * rng.uniform(0.1, 0.3)
+    height = width * rng.uniform(0.4, 0.9)
+    if rng.random() < 0.6:
+        cols = max(1, int(round(np.sqrt(views * width / height))))
+        rows = int(np.ceil(views / cols))
+        row, col = np.arange(views) // cols, np.arange(views) % cols
+        col = np.where(row % 2 == 1, cols - 1 - col, col)  # serpentine: the way a person sweeps
+        offsets = np.stack([(col + 0.5) / cols, (row + 0.5) / rows], axis=1) - 0.5
+        offsets += rng.normal(0, 0.15, (views, 2)) / np.array([cols, rows])
+    else:
+        offsets = rng.uniform(-0.5, 0.5, (views, 2))
+    eyes = stage.center + np.stack([offsets[:, 0] * width, rng.normal(0, 0.1 * width, views),
+                                    offsets[:, 1] * height], axis=1)
+    subject = np.array([0.0, stage.depth, 0.0])
+    aim = subject + rng.normal(0, np.tan(np.radians(3.0)) * stage.depth, 3)  # the photographer's framing
+    shake = np.radians(rng.uniform(0.5, 2.5))
+    if rng.random() < 0.5:  # every shot re-aimed at the subject
+        targets = aim + rng.normal(0, shake * stage.depth, (views, 3))
+    else:  # one heading kept while stepping sideways
+        heading = (aim - stage.center) / np.linalg.norm(aim - stage.center)
+        targets = eyes + heading + rng.normal(0, shake, (views, 3))
+    return _cameras(frame, look_at(eyes, targets, rng.normal(0, shake, views)))
+
+
+def phone_orbit_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int) -> Cameras:
+    """A phone carried around the subject: a full loop (60%) or a 110-290 degree arc, the distance varying
+    smoothly by up to +-25% and the height between 5 and ~55 degrees of elevation along the walk."""
+    base = min(_fit_distance(rng, frame, stage.radius), 0.85 * stage.limit)
+    arc = 2 * np.pi if rng.random() < 0.6 else np.radians(rng.uniform(110, 290))
+    t = np.arange(views) / views if arc == 2 * np.pi else np.linspace(0, 1, views)
+    azimuth = rng.uniform(0, 2 * np.pi) + arc * t + rng.normal(0, 0.2 * arc / views, views)
+    waves = rng.integers(1, 4, 2)
+    phases = rng.uniform(0, 2 * np.pi, 2)
+    swing = rng.uniform(0.08, 0.25) * np.sin(2 * np.pi * waves[0] * t + phases[0])
+    distance = np.clip(base * np.exp(swing), 1.8 * stage.radius, stage.limit)
+    elevation = np.radians(rng.uniform(5, 35) + rng.uniform(3, 10) * (1 + np.sin(2 * np.pi * waves[1] * t + phases[1]))
+                           + rng.normal(0, 2, views))
+    eyes = stage.center + distance[:, None] * np.stack(
+        [np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)], axis=1)
+    if stage.ground is not None:
+        eyes[:, 2] = np.maximum(eyes[:, 2], stage.ground + 0.3 * stage.radius)
+    eyes = _below_ceiling(stage, eyes)
+    targets = stage.center + rng.normal(0, 0.15 * stage.radius, (views, 3))
+    return _cameras(frame, look_at(eyes, targets, np.radians(rng.normal(0, 3, views))))
+
+
+def handheld_rig(rng: np.random.Generator, stage: Stage, frame: Frame, views: int) -> Cameras:
+    """The hand-held capture the world was composed for (``stage.style``)."""
+    return (handheld_grid_rig if stage.style == "grid" else phone_orbit_rig)(rng, stage, frame, views)
+
+
+RIGS = {"object": object_rig, "360": orbit_rig, "forward": forward_rig, "handheld": handheld_rig}
 
 
 def held_out_indices(views: int, test_views: int) -> list[int]:

@@ -13,7 +13,7 @@ import torch
 from ..cameras import Cameras
 from .capture import luminance
 from .raycast import SceneMesh, cast
-from .shading import shade
+from .shading import shade, sky_radiance
 from .textures import srgb_to_linear
 from .world import World
 
@@ -55,10 +55,15 @@ def _trace(scene: SceneMesh, world: World, camera: Cameras, uv: torch.Tensor
     origins = np.broadcast_to(camera.centers[0].numpy(), directions.shape)
     hits = cast(scene, origins, directions)
     radiance = np.empty(directions.shape)
-    radiance[:] = srgb_to_linear(world.background)
+    focal = float(camera.K[0, 0, 0])
+    if world.sky is None:
+        radiance[:] = srgb_to_linear(world.background)
+    else:  # rays that leave the scene see the sky at infinity; they keep depth 0 (no surface)
+        missed = np.ones(len(directions), dtype=bool)
+        missed[hits.ray] = False
+        radiance[missed] = sky_radiance(world.sky, directions[missed], focal)
     depth = np.zeros(len(directions))
     objects = np.full(len(directions), -1)
-    focal = float(camera.K[0, 0, 0])
     radiance[hits.ray] = shade(scene, world, hits, directions[hits.ray], focal)
     depth[hits.ray] = hits.t
     objects[hits.ray] = hits.objects
@@ -82,17 +87,15 @@ def _edge_pixels(depth: np.ndarray, objects: np.ndarray) -> np.ndarray:
 def auto_exposure(scene: SceneMesh, world: World, cameras: Cameras, target: float = 0.85) -> float:
     """Factor for the lights so that the 95th percentile of lit-surface luminance lands at ``target``.
 
-    Measured on up to four views at a quarter of the resolution; emissive skies and the background are
-    left out (a photographer exposes for the subject; the sky stays as painted).
+    Measured on up to four views at a quarter of the resolution; the sky and the background (rays that hit
+    nothing) are left out (a photographer exposes for the subject; the sky stays as painted).
     """
-    # The extra last entry is what index -1 (a miss) picks: misses are left out like skies.
-    emissive = np.array([world.materials[o.material].mapping == "sky" for o in world.objects] + [True])
     samples = []
     for i in np.linspace(0, len(cameras) - 1, min(4, len(cameras))).round().astype(int):
         camera = cameras[[int(i)]]
         small = camera.rescale(max(1, camera.height // 4), max(1, camera.width // 4))
         radiance, _, objects = _trace(scene, world, small, small.pixel_grid().reshape(1, -1, 2))
-        samples.append(luminance(radiance[~emissive[objects]]))
+        samples.append(luminance(radiance[objects >= 0]))
     values = np.concatenate(samples)
     if len(values) == 0:
         return 1.0

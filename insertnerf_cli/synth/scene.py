@@ -24,7 +24,7 @@ from .raycast import build_scene_mesh
 from .render import auto_exposure, render_view
 from .world import World, exposed
 
-LAYOUTS = ("object", "forward", "360")
+LAYOUTS = ("object", "forward", "360", "handheld")
 # Depth files store millimetres of scene units in uint16 (nerfstudio's convention).
 DEPTH_SCALE = 0.001
 # Margins that turn the rendered depth range into near/far bounds valid for every view.
@@ -40,7 +40,7 @@ class SceneSpec:
     Attributes:
         index: scene number in its dataset; with ``seed`` it seeds every random stream of the scene.
         seed: the dataset seed (>= 0).
-        layout: "object", "forward" or "360".
+        layout: "object", "forward", "360" or "handheld".
         views: views rendered, of which ``test_views`` are held out in transforms_test.json.
         resolution: long side of the images in pixels.
         aspects: image aspect ratios (long / short) to draw from.
@@ -119,21 +119,24 @@ def render_scene(spec: SceneSpec, folder: Path) -> RenderedScene:
     settings = draw_settings(stream(spec.seed, spec.index, _CAPTURE), spec.capture)
     splits = scene_splits(spec)
     depth_range = [np.inf, 0.0]
+    captured: dict[str, list[dict]] = {}
     for split, indices in splits.items():
         for k, i in enumerate(indices):
             view = render_view(mesh, world, cameras[[i]])
-            rgb = develop(view.radiance, settings, stream(spec.seed, spec.index, _VIEW, i))
+            rgb, capture = develop(view.radiance, settings, stream(spec.seed, spec.index, _VIEW, i))
+            captured.setdefault(split, []).append(capture.to_json())
             _write_png(folder / split / f"r_{k:03d}.png", rgb[..., ::-1])
             _write_png(folder / "depth" / split / f"r_{k:03d}.png", encode_depth(view.depth))
             valid = view.depth[view.depth > 0]
             if len(valid):
                 depth_range = [min(depth_range[0], valid.min()), max(depth_range[1], valid.max())]
     near, far = _bounds(depth_range)
+    facing = "forward" if spec.layout == "forward" or world.stage.style == "grid" else "object"
     for split, indices in splits.items():
         if indices:
-            _write_transforms(folder, split, cameras[indices], spec, near, far)
+            _write_transforms(folder, split, cameras[indices], spec, near, far, facing)
     record = {"spec": spec.to_json(), "world": world.description, "exposure": exposure,
-              "frame": asdict(frame), "capture": settings.to_json(), "near": near, "far": far}
+              "frame": asdict(frame), "capture": settings.to_json(), "views": captured, "near": near, "far": far}
     (folder / "scene.json").write_text(json.dumps(record, indent=2) + "\n")
     return RenderedScene(spec.name, spec.views, time.perf_counter() - start, near, far)
 
@@ -155,10 +158,12 @@ def _write_png(path: Path, image: np.ndarray) -> None:
         raise OSError(f"could not write {path}")
 
 
-def _write_transforms(folder: Path, split: str, cameras: Cameras, spec: SceneSpec, near: float, far: float) -> None:
+def _write_transforms(folder: Path, split: str, cameras: Cameras, spec: SceneSpec, near: float, far: float,
+                      facing: str) -> None:
+    """One split's transforms file; ``facing`` is the readers' layout ("forward" or "object")."""
     names = [f"{split}/r_{k:03d}.png" for k in range(len(cameras))]
     depths = [{"depth_file_path": f"depth/{split}/r_{k:03d}.png"} for k in range(len(cameras))]
-    extra = {"layout": "forward" if spec.layout == "forward" else "object", "depth_unit_scale_factor": DEPTH_SCALE,
+    extra = {"layout": facing, "depth_unit_scale_factor": DEPTH_SCALE,
              "synth_layout": spec.layout}
     write_blender_transforms(folder / f"transforms_{split}.json", cameras, names, near=near, far=far, extra=extra,
                              frame_extras=depths)

@@ -1,5 +1,6 @@
 """Surface colour at ray hits: textures mapped in object space, Lambert + Blinn-Phong lights with cast
-shadows (one batch of shadow rays per light), a sky/ground ambient term, and unlit sky domes.
+shadows (one batch of shadow rays per light), a sky/ground ambient term, one-bounce mirror reflections on
+coated materials, and the unlit sky at infinity.
 
 Radiance is linear RGB in units where a white Lambertian surface facing a light of colour 1 has radiance 1
 (the 1/pi of the BRDF is folded into the light colours).
@@ -10,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .raycast import Hits, SceneMesh
-from .textures import sample
+from .raycast import Hits, SceneMesh, cast
+from .textures import sample, srgb_to_linear
 from .world import Light, Material, World
 
 # Triplanar blend sharpness: higher gives narrower transitions between the three projections.
@@ -24,33 +25,55 @@ _SHADOW_OFFSET = 1e-4
 _MIN_COS = 0.25
 
 
-def shade(scene: SceneMesh, world: World, hits: Hits, directions: np.ndarray, focal: float) -> np.ndarray:
+def shade(scene: SceneMesh, world: World, hits: Hits, directions: np.ndarray, focal: float,
+          reflections: bool = True) -> np.ndarray:
     """Radiance [H, 3] of hits seen along ray directions [H, 3] (camera-z = 1) by a camera of focal length
-    ``focal`` pixels."""
+    ``focal`` pixels; ``reflections=False`` leaves mirror coats out (the bounce of a reflection)."""
+    if len(hits.t) == 0:
+        return np.zeros((0, 3), dtype=np.float32)
     view = -directions / _norm(directions)[:, None]  # [H, 3] toward the camera
     cos_view = np.maximum(np.einsum("hc,hc->h", hits.normals, view), _MIN_COS)
     footprint = hits.t / focal / cos_view  # [H] world size of one pixel on the surface
     material_of = scene.object_material[hits.objects]  # [H]
     local, weights = _object_frame(scene, hits)
     albedo = np.zeros((len(hits.t), 3), dtype=np.float32)
-    emissive = np.zeros(len(hits.t), dtype=bool)
     order = np.argsort(material_of, kind="stable")  # hits grouped by material: one slice each
     starts = np.searchsorted(material_of[order], np.arange(len(world.materials) + 1))
     for m, material in enumerate(world.materials):
         sel = order[starts[m]:starts[m + 1]]
         if len(sel) == 0:
             continue
-        if material.mapping == "sky":
-            albedo[sel] = _sky_albedo(material, hits.points[sel], footprint[sel] / hits.t[sel])
-            emissive[sel] = True
-        else:
-            albedo[sel] = _triplanar(material, local[sel], weights[sel], footprint[sel])
-    radiance = albedo.copy()
-    lit = np.flatnonzero(~emissive)
-    surface = Surface(albedo[lit], *(np.array([getattr(mat, key) for mat in world.materials])[material_of[lit]]
-                                     for key in ("specular", "shininess", "metallic")))
-    radiance[lit] = _lit(scene, world, surface, hits, lit, view[lit])
+        albedo[sel] = _triplanar(material, local[sel], weights[sel], footprint[sel])
+    surface = Surface(albedo, *(np.array([getattr(mat, key) for mat in world.materials])[material_of]
+                                for key in ("specular", "shininess", "metallic")))
+    radiance = _lit(scene, world, surface, hits, np.arange(len(hits.t)), view)
+    mirror = np.array([mat.mirror for mat in world.materials])[material_of]
+    coated = np.flatnonzero(mirror > 0) if reflections else np.zeros(0, dtype=np.int64)
+    if len(coated):
+        cos = np.clip(np.einsum("hc,hc->h", hits.normals[coated], view[coated]), 0.0, 1.0)
+        fresnel = (mirror[coated] + (1 - mirror[coated]) * (1 - cos) ** 5)[:, None]
+        metallic = surface.metallic[coated, None]
+        tint = (1 - metallic) + metallic * albedo[coated]
+        reflected = _reflected(scene, world, hits, coated, view[coated], focal)
+        radiance[coated] = (1 - fresnel) * radiance[coated] + fresnel * tint * reflected
     return radiance
+
+
+def _reflected(scene: SceneMesh, world: World, hits: Hits, sel: np.ndarray, view: np.ndarray, focal: float
+               ) -> np.ndarray:
+    """Radiance [S, 3] arriving at hits ``sel`` along the mirror direction of ``view`` [S, 3] (one bounce:
+    the surface hit there is shaded without reflections; rays that leave the scene see the sky)."""
+    normals = hits.normals[sel]
+    mirrored = 2 * np.einsum("sc,sc->s", normals, view)[:, None] * normals - view
+    origins = hits.points[sel] + hits.geometric[sel] * _SHADOW_OFFSET * scene.shadow_extent
+    second = cast(scene, origins, mirrored)
+    out = np.empty((len(sel), 3), dtype=np.float32)
+    missed = np.ones(len(sel), dtype=bool)
+    missed[second.ray] = False
+    out[missed] = srgb_to_linear(world.background) if world.sky is None else \
+        sky_radiance(world.sky, mirrored[missed], focal)
+    out[second.ray] = shade(scene, world, second, mirrored[second.ray], focal, reflections=False)
+    return out
 
 
 @dataclass(frozen=True)
@@ -99,12 +122,15 @@ def _triplanar(material: Material, local: np.ndarray, weights: np.ndarray, footp
     return albedo
 
 
-def _sky_albedo(material: Material, points: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Sky colour [S, 3] by direction from the dome's centre: u = azimuth, v = elevation above the horizon."""
-    direction = points / _norm(points)[:, None]
+def sky_radiance(material: Material, directions: np.ndarray, focal: float) -> np.ndarray:
+    """Colour [S, 3] of the sky at infinity along ray directions [S, 3] (camera-z = 1) of a camera of focal
+    length ``focal`` pixels: u = azimuth, v = elevation above the horizon (below it: the horizon's colour)."""
+    length = _norm(directions)
+    direction = directions / length[:, None]
     azimuth = np.arctan2(direction[:, 1], direction[:, 0]) / (2 * np.pi)
     elevation = np.clip(np.arcsin(np.clip(direction[:, 2], -1, 1)) / (np.pi / 2), 0.0, 0.999)
     uv = np.stack([azimuth * material.tile, elevation], axis=1)
+    angle = 1.0 / (focal * length)  # angle one pixel spans, radians
     return sample(material.texture, uv, angle * material.tile / (2 * np.pi))
 
 

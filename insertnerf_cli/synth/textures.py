@@ -68,6 +68,8 @@ def sample(texture: Texture, uv: np.ndarray, footprint: np.ndarray) -> np.ndarra
     Returns:
         [P, 3] linear RGB (float32).
     """
+    if len(uv) == 0:  # cv2.remap refuses empty maps
+        return np.zeros((0, 3), dtype=np.float32)
     level = np.log2(np.maximum(footprint * texture.sizes[0], 1e-9))
     level = np.clip(np.rint(level), 0, len(texture.sizes) - 1).astype(np.int64)
     size = texture.sizes[level]  # [P]

@@ -32,6 +32,9 @@ class Material:
         metallic: 0 gives white highlights, 1 highlights tinted by the albedo.
         mapping: "triplanar" in object space, or "sky": by direction, unlit (emissive).
         name: short description for the scene record.
+        mirror: Fresnel reflectance at normal incidence of a mirror-like coat (0 = none): lacquer, glaze
+            and plastics ~0.03-0.12, polished metal 0.5-0.9 (tinted by the albedo when metallic); the
+            reflection grows toward grazing angles (Schlick) and shows the scene itself (one bounce).
         macro: optional grey variation [0, 1] multiplied over large surfaces, with its own tile size
             ``macro_tile`` and ``macro_strength``: breaks the visible repetition of a tiled floor or wall.
     """
@@ -43,6 +46,7 @@ class Material:
     metallic: float = 0.0
     mapping: Mapping = "triplanar"
     name: str = ""
+    mirror: float = 0.0
     macro: Texture | None = None
     macro_tile: float = 1.0
     macro_strength: float = 0.0
@@ -93,7 +97,9 @@ class Stage:
         limit: cameras stay within this distance of ``center`` (inside the room or sky dome, clear of the
             furniture and scenery along its edge).
         ceiling: cameras stay below this height (a room's ceiling).
-        depth: forward layout: distance from the camera plane to the nearest subject geometry.
+        depth: forward layout: distance from the camera plane to the nearest subject geometry; handheld
+            layout: distance from the camera plane to the subject.
+        style: handheld layout: "grid" (forward-facing, hand-held) or "orbit" (a phone walking around).
     """
 
     center: np.ndarray
@@ -102,6 +108,7 @@ class Stage:
     limit: float = np.inf
     ceiling: float = np.inf
     depth: float = 0.0
+    style: str = ""
 
 
 @dataclass(frozen=True)
@@ -112,6 +119,8 @@ class World:
         background: sRGB colour [3] for rays that hit nothing (enclosed worlds never show it).
         ambient_sky, ambient_ground: linear RGB ambient light from above and from below.
         description: what was drawn, for the scene record (JSON-ready).
+        sky: environment at infinity, looked up by ray direction, for rays that leave the scene (None: they
+            show ``background``). Either way such pixels have no surface: depth 0.
     """
 
     objects: tuple[Placed, ...]
@@ -122,6 +131,7 @@ class World:
     ambient_sky: np.ndarray
     ambient_ground: np.ndarray
     description: dict = field(default_factory=dict)
+    sky: Material | None = None
 
 
 # ---------------------------------------------------------------------------------------------- random parts
@@ -155,6 +165,9 @@ def random_material(rng: np.random.Generator, tile_scale: float = 1.0, glossy: b
                         shininess=float(np.exp(rng.uniform(np.log(5), np.log(300)))),
                         metallic=float(rng.random() < 0.2), name=name)
     if glossy:
+        if rng.random() < 0.25:  # a polished or varnished coat that mirrors its surroundings
+            coat = rng.uniform(0.5, 0.9) if material.metallic else rng.uniform(0.03, 0.12)
+            material = replace(material, mirror=float(coat), name=f"{name}+mirror")
         return material
     # A non-integer ratio of tile sizes, so the two patterns never line up again.
     macro = Texture.from_image(np.repeat(fbm(rng, _MACRO_SIZE)[..., None], 3, axis=2))
