@@ -12,11 +12,11 @@ from insertnerf_cli.scenes.geometry import detect_layout
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.synth import (GENERATOR_VERSION, CaptureOptions, SceneSpec, SynthOptions, build_dataset,
                                   generate_dataset)
-from insertnerf_cli.synth.compose import COMPOSERS
 from insertnerf_cli.synth.dataset import render_into
 from insertnerf_cli.synth.layouts import RIGS, random_frame
 from insertnerf_cli.synth.raycast import build_scene_mesh
 from insertnerf_cli.synth.scene import DEPTH_SCALE, scene_cameras, scene_world
+from insertnerf_cli.synth.world import Stage
 
 from test_synth import _depth, _files
 
@@ -94,27 +94,33 @@ def test_rooms_have_no_sky_and_every_ray_ends_on_a_surface(tmp_path):
     assert all((_depth(scene, i) > 0).all() for i in range(len(scene)))
 
 
-def _handheld(style: str, count: int) -> list:
-    worlds, seed = [], 0
-    while len(worlds) < count:
-        rng = np.random.default_rng(seed)
-        world = COMPOSERS["handheld"](rng)
-        if world.stage.style == style:
-            worlds.append((world, rng))
-        seed += 1
-    return worlds
+def _stages(style: str) -> list[tuple[Stage, np.random.Generator]]:
+    """Stages like compose_handheld's (subject distances 2.5-6, scene depths up to 24; orbits inside rooms of
+    various sizes), each with the generator its rig draws from."""
+    rng = np.random.default_rng(0)
+    stages = []
+    for seed in range(8):
+        if style == "grid":
+            distance = rng.uniform(2.5, 6.0)
+            stage = Stage(np.array([0.0, 0.0, rng.uniform(0, 0.8)]), min(distance * rng.uniform(2.5, 6.0), 24.0),
+                          -1.0, depth=distance, style="grid")
+        else:
+            stage = Stage(np.zeros(3), 1.0, -rng.uniform(0.3, 1.0), rng.uniform(3.0, 5.0), ceiling=rng.uniform(2.5, 8),
+                          style="orbit")
+        stages.append((stage, np.random.default_rng(seed)))
+    return stages
 
 
 def test_handheld_grid_is_a_small_forward_facing_baseline():
-    for world, rng in _handheld("grid", 6):
-        cameras = RIGS["handheld"](rng, world.stage, random_frame(rng, 64, (4 / 3,)), 30)
+    for stage, rng in _stages("grid"):
+        cameras = RIGS["handheld"](rng, stage, random_frame(rng, 64, (4 / 3,)), 30)
         eyes = cameras.centers.numpy()
         axes = cameras.c2w[:, :3, 2].numpy()
         spread = eyes - eyes.mean(axis=0)
         extent = np.ptp(eyes[:, [0, 2]], axis=0).max()  # across and up: the plane the phone moves in
         # LLFF-like: a baseline of 8-40% of the subject's distance, a few % of the scene's depth.
-        assert 0.08 * world.stage.depth < extent < 0.4 * world.stage.depth
-        assert extent < 0.15 * world.stage.radius
+        assert 0.08 * stage.depth < extent < 0.4 * stage.depth
+        assert extent < 0.15 * stage.radius
         singular = np.linalg.svd(spread, compute_uv=False)
         assert singular[2] < 0.5 * singular[0]  # a rough plane, not a cloud
         mean_axis = axes.mean(axis=0) / np.linalg.norm(axes.mean(axis=0))
@@ -124,17 +130,17 @@ def test_handheld_grid_is_a_small_forward_facing_baseline():
 
 
 def test_handheld_orbit_varies_height_and_distance_around_the_subject():
-    for world, rng in _handheld("orbit", 6):
-        cameras = RIGS["handheld"](rng, world.stage, random_frame(rng, 64, (4 / 3,)), 30)
-        offset = cameras.centers.numpy() - world.stage.center
+    for stage, rng in _stages("orbit"):
+        cameras = RIGS["handheld"](rng, stage, random_frame(rng, 64, (4 / 3,)), 30)
+        offset = cameras.centers.numpy() - stage.center
         distance = np.linalg.norm(offset, axis=1)
         elevation = np.degrees(np.arcsin(offset[:, 2] / distance))
         azimuth = np.unwrap(np.arctan2(offset[:, 1], offset[:, 0]))
         assert np.degrees(np.ptp(azimuth)) > 100  # walking around it, not a forward grid
         assert distance.max() / distance.min() > 1.05 and np.ptp(elevation) > 4.0
-        assert distance.min() > 1.5 * world.stage.radius
+        assert distance.min() > 1.5 * stage.radius
         # Every camera looks at the subject: its centre projects near the middle of the image.
-        uv, z = cameras.project(cameras.c2w.new_tensor(world.stage.center)[None])
+        uv, z = cameras.project(cameras.c2w.new_tensor(stage.center)[None])
         assert (z > 0).all()
         assert (uv[:, 0] - uv.new_tensor([cameras.width / 2, cameras.height / 2])).abs().max() < cameras.width / 2
 

@@ -1,7 +1,8 @@
 """Procedural synthetic scenes, the training data of the pretrained generator (``insertnerf synth``).
 
-Pipeline per scene: compose.py draws a World (shapes from geometry.py / implicit.py, textures from
-textures.py / drawing.py, lights) -> layouts.py places cameras -> raycast.py flattens the world for embree ->
+Pipeline per scene: compose.py draws a World into a builder.py Builder (shapes from geometry.py /
+implicit.py, surroundings and the sky at infinity from enclosures.py, textures from textures.py / drawing.py /
+natural.py, lights) -> layouts.py places cameras -> raycast.py flattens the world for embree ->
 render.py + shading.py render each view -> capture.py develops it into an 8-bit photo -> scene.py writes a
 Blender-format folder. dataset.py runs scenes in parallel with a manifest and resume.
 """

@@ -84,9 +84,29 @@ def _room(b: Builder, rng: np.random.Generator, floor: float, lo: np.ndarray, hi
         along = rng.uniform(-0.45, 0.45)
         spot = np.array([[0.47, along], [-0.47, along], [along, 0.47], [along, -0.47]])[rng.integers(4)]
         b.stand(random_shape(rng), center + spot * size, float(rng.uniform(0.05, 0.15) * size.min()), floor)
+    _piers(b, rng, center, size, floor, extents[2], material)
     # Furniture reaches ~0.2 of the way in from the walls: cameras stay inside 0.7 of the nearest wall.
     limit = float(np.min(np.abs(np.concatenate([center - size / 2, center + size / 2]))) * 0.7)
     return Enclosure("room", center, size, floor, floor + extents[2], limit)
+
+
+def _piers(b: Builder, rng: np.random.Generator, center: np.ndarray, size: np.ndarray, floor: float,
+           height: float, wall: int) -> None:
+    """0-4 piers, chimney breasts and built-in cabinets jutting 3-12% of the room into it from the walls:
+    the walls stand at several depths, with inner corners and occlusion edges."""
+    for _ in range(int(rng.integers(0, 5))):
+        normal = int(rng.integers(2))  # the axis the wall faces along
+        sign = float(rng.choice([-1.0, 1.0]))
+        depth, width = rng.uniform(0.03, 0.12) * size[normal], rng.uniform(0.05, 0.25) * size[1 - normal]
+        tall = height if rng.random() < 0.5 else height * rng.uniform(0.3, 0.8)
+        middle, extents = np.zeros(3), np.zeros(3)
+        middle[normal] = center[normal] + sign * (size[normal] / 2 - depth / 2)
+        middle[1 - normal] = center[1 - normal] + rng.uniform(-0.4, 0.4) * size[1 - normal]
+        middle[2] = floor + tall / 2
+        extents[normal], extents[1 - normal], extents[2] = depth, width, tall
+        same = rng.random() < 0.5  # plastered like the wall, or a cabinet of its own material
+        _block(b, middle, extents, 0.0, wall if same else b.material(random_material(rng, glossy=False)), "pier",
+               True)
 
 
 def _facade_material(b: Builder, rng: np.random.Generator, size: float) -> int:
