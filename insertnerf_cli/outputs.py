@@ -21,7 +21,7 @@ from torch import Tensor
 from .atomic import atomic_path, write_bytes, write_json
 from .cameras import Cameras
 from .errors import UserError
-from .outdir import OutputRecord, check_output, foreign_entries, remove_if_empty
+from .outdir import OutputRecord, check_output, foreign_entries, holds_files, remove_if_empty
 from .poses_io import LEGACY_OUTPUTS as POSES_LEGACY_OUTPUTS, OWNER as POSES_OWNER
 
 FRAME_DIRS = ("frames", "depth", "depth_vis")
@@ -300,7 +300,7 @@ def check_eval_outputs(scene_dir: Path, checkpoint: Path | None, json_path: Path
         return
     if json_path is not None and Path(json_path).exists():
         raise UserError(f"{json_path} exists; pass --overwrite to replace it or choose another --json")
-    if out_dir is not None and Path(out_dir).is_dir() and any(Path(out_dir).iterdir()):
+    if out_dir is not None and holds_files(Path(out_dir)):
         raise UserError(f"{out_dir} is not empty; pass --overwrite to replace the images insertnerf wrote "
                         "there (other files are kept) or choose another --out")
 

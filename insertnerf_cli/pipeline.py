@@ -24,6 +24,7 @@ from .config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from .cameras import Cameras
 from .errors import UserError
 from .metrics import SSIM_WINDOW, psnr, ssim
+from .lock import lock_output, releases_output_locks
 from .outdir import OutputRecord, check_output, remove_if_empty
 from .outputs import OWNER as RENDER_OWNER
 from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_eval_outputs, check_resumable, claim_render_outputs,
@@ -307,6 +308,7 @@ def _plan(scene, config: RenderConfig):
     return scene, similarity, path
 
 
+@releases_output_locks
 def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfig) -> RenderSummary:
     """Render a camera path of the scene in ``scene_dir`` into ``out_dir`` (see outputs.py for the files).
 
@@ -327,6 +329,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     model = _load_model(checkpoint, config.device)
     state = _render_state(scene_dir, checkpoint, config, images)
     created = not out_dir.exists()
+    lock_output(out_dir, RENDER_OWNER)  # one writer per folder (lock.py)
     prepare_out_dir(out_dir, state, config.overwrite)
     scene, similarity, path = planned or _plan(_posed_photos(scene_dir, out_dir, created), config)
     if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
@@ -377,12 +380,15 @@ def _render_frames(renderer: _Renderer, path: CameraPath, out_dir: Path, scale: 
 
 
 # ---------------------------------------------------------------------------------------------------- eval
+@releases_output_locks
 def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
     """Render each held-out view from its nearest non-held-out views, score it against the photo, and write the
     side-by-sides and JSON report that ``config`` asks for."""
     from .scenes import load_scene, normalize_scene
 
     check_eval_outputs(Path(scene_dir), config.checkpoint, config.json_path, config.out_dir, config.overwrite)
+    if config.out_dir is not None:
+        lock_output(config.out_dir, "eval")
     scene, _ = normalize_scene(load_scene(Path(scene_dir)))
     held = held_out_views(scene, config.max_views)
     size = scene.size_for(config.resolution)
