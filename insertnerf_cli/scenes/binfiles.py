@@ -84,8 +84,10 @@ def load_npz(path: Path) -> dict[str, np.ndarray]:
         raise
     except (zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, EOFError, ValueError, NotImplementedError,
             UnicodeDecodeError, KeyError, OverflowError, struct.error, OSError) as err:
-        raise SceneError(f"cannot read {path}: damaged .npz archive ({type(err).__name__}: "
-                         f"{str(err).splitlines()[0] if str(err) else 'no detail'}); re-create the file") from None
+        detail = (str(err).splitlines() or ["no detail"])[0]
+        detail = detail if len(detail) <= 120 else detail[:120] + "..."  # zipfile quotes whole damaged names
+        raise SceneError(f"cannot read {path}: damaged .npz archive ({type(err).__name__}: {detail!r}); "
+                         "re-create the file") from None
     return arrays
 
 

@@ -57,8 +57,8 @@ def _parse_cam(path: Path) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]
         raise SceneError(os_error_message(err)) from None
     except ValueError as err:
         raise SceneError(f"cannot read DTU camera file {path}: {err}") from None
-    if not depth:
-        raise SceneError(f"{path}: no 'depth_min depth_interval' line after the intrinsics")
+    if len(depth) < 2:  # a file cut short keeps depth_min alone
+        raise SceneError(f"{path}: no 'depth_min depth_interval' line after the intrinsics (cut short?)")
     matrix(w2c, "extrinsic", path, [(4, 4)])
     number(K[0, 2], "intrinsic cx", path, low=0.0)  # _fit_K divides by it
     matrix(K, "intrinsic", path, [(3, 3)])
