@@ -165,7 +165,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="first seed")
     parser.add_argument("--format", action="append", choices=sorted(FORMATS), help="only this format (repeatable)")
     parser.add_argument("--slow-s", type=float, default=20.0, help="a variant slower than this fails")
-    parser.add_argument("--max-rss-mb", type=float, default=2048.0, help="peak memory above this fails the run")
+    parser.add_argument("--max-rss-mb", type=float, default=1024.0, help="peak memory above this fails the run")
     parser.add_argument("--address-space-gb", type=float, default=6.0, help="RLIMIT_AS of this process (0: none)")
     parser.add_argument("--verbose", action="store_true", help="print every variant, not only failures")
     args = parser.parse_args()

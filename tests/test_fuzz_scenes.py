@@ -9,8 +9,10 @@ from __future__ import annotations
 import importlib.util
 import struct
 import sys
+import zlib
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -127,3 +129,21 @@ def test_seeded_fuzz_of_each_format_never_fails(name: str) -> None:
     assert not failures, failures
     assert {o.verdict for o in outcomes} <= {"loaded", "refused"}
     assert any(o.verdict == "refused" for o in outcomes)  # the damage reached a reader
+
+
+def test_png_with_a_damaged_header_is_refused_before_the_decoder_allocates(tmp_path: Path) -> None:
+    from insertnerf_cli.scenes import read_rgb
+
+    path = tmp_path / "a.png"
+    assert cv2.imwrite(str(path), np.zeros((24, 32, 3), np.uint8))
+    data = bytearray(path.read_bytes())
+    data[24] ^= 0x12  # IHDR's bit depth: OpenCV allocated 1 GB for this 24x32 image
+    path.write_bytes(bytes(data))
+    with pytest.raises(SceneError, match="PNG header is damaged"):
+        read_rgb(path)
+    data[24] ^= 0x12
+    data[16:24] = struct.pack(">II", 1 << 16, 1 << 14)  # 2^30 pixels declared, CRC made valid again
+    data[29:33] = zlib.crc32(bytes(data[12:29])).to_bytes(4, "big")
+    path.write_bytes(bytes(data))
+    with pytest.raises(SceneError, match=r"declares \d+\+ megapixels, over 268"):
+        read_rgb(path)

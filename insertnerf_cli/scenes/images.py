@@ -5,7 +5,9 @@ with Pillow and applied here, so the same photo reads the same way whatever the 
 """
 from __future__ import annotations
 
+import io
 import os
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -18,6 +20,8 @@ from ..errors import SceneError, os_error_message
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 
 _EXIF_ORIENTATION = 0x0112
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+MAX_PIXELS = 1 << 28  # 268 megapixels: past any photo this tool renders from; more is a damaged header
 
 
 @dataclass(frozen=True)
@@ -52,10 +56,33 @@ def _decode(path: Path) -> np.ndarray:
         data = np.fromfile(path, dtype=np.uint8)  # fromfile + imdecode copes with any path encoding
     except OSError as err:
         raise SceneError(os_error_message(err)) from None
+    _check_declared_size(data, path)
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise SceneError(f"cannot decode image {path}: not a readable image file (corrupt or unsupported)")
     return img
+
+
+def _check_declared_size(data: np.ndarray, path: Path) -> None:
+    """Refuse a header that declares more than MAX_PIXELS pixels before the decoder allocates them (one flipped bit
+    in a PNG's IHDR made OpenCV allocate 1 GB for a 24x32 image)."""
+    from PIL import Image
+
+    head = data[:33].tobytes()
+    if head.startswith(_PNG_SIGNATURE) and (len(head) < 33 or zlib.crc32(head[12:29]) != int.from_bytes(head[29:33],
+                                                                                                       "big")):
+        # OpenCV allocated 1 GB for a 32x24 PNG whose IHDR had a flipped bit-depth byte: check the chunk's CRC first
+        raise SceneError(f"cannot decode image {path}: its PNG header is damaged (checksum mismatch); re-export it")
+    try:
+        with Image.open(io.BytesIO(data.tobytes())) as im:  # reads the header only
+            width, height = im.size
+    except Image.DecompressionBombError:  # Pillow's own limit (about 179 megapixels) was passed
+        width, height = MAX_PIXELS, 1
+    except Exception:  # noqa: BLE001 - a header Pillow cannot parse is left to OpenCV's decoder
+        return
+    if width * height >= MAX_PIXELS:
+        raise SceneError(f"cannot decode image {path}: its header declares {width * height / 1e6:.0f}+ megapixels, "
+                         f"over {MAX_PIXELS / 1e6:.0f} (damaged, or too large to render from)")
 
 
 def exif_orientation(path: Path) -> int:
