@@ -143,12 +143,21 @@ def _acquire(path: Path, out: Path, owner: str) -> _Held:
                                 f"({err.strerror}); choose an output on a local disk.") from None
             raise
         if _same_file(fd, path):
-            record = f"{os.getpid()} {owner}\n".encode()
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, record, 0)
+            _write_holder(fd, owner)
             return _Held(fd, created)
         os.close(fd)  # we locked a file its holder had already removed: lock the current one
     raise UserError(f"could not lock {path}: other processes keep replacing it; re-run.")
+
+
+def _write_holder(fd: int, owner: str) -> None:
+    """Write "PID COMMAND" for a refused writer to quote. On a full disk the lock holds without it: the command
+    then meets the full disk where it writes its outputs, with the message that names them."""
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()} {owner}\n".encode(), 0)
+    except OSError as err:
+        if err.errno not in (errno.ENOSPC, errno.EDQUOT):
+            raise
 
 
 def _same_file(fd: int, path: Path) -> bool:
