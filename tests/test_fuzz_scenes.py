@@ -110,7 +110,7 @@ def test_colmap_points_bin_cut_short_is_refused_before_allocating(tmp_path: Path
     _refused(root, "points3D.bin", "cut short")
     # A count flipped to a huge number: refused from the byte count, never allocated (pycolmap asked for 24 GB).
     path.write_bytes(struct.pack("<Q", 2**40) + data[8:])
-    _refused(root, "points3D.bin", "declares 1099511627776")
+    _refused(root, "points3D.bin", "the point count (1099511627776) needs")
 
 
 def test_colmap_bytes_after_the_records_are_refused(tmp_path: Path) -> None:

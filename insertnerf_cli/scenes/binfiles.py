@@ -107,8 +107,8 @@ class _Cursor:
         """Refuse ``count`` records of ``size`` bytes that the bytes left cannot hold (before allocating)."""
         left = len(self.data) - self.at
         if count * size > left:
-            raise SceneError(f"{self.path}: {what} declares {count} x {size} bytes but only {left} bytes are left: "
-                             "the file is cut short or damaged; re-export the model")
+            raise SceneError(f"{self.path}: {what} needs {count} x {size} bytes but only {left} are left: the file "
+                             "is cut short or damaged; re-export the model")
 
     def take(self, fmt: str, what: str) -> tuple:
         size = struct.calcsize("<" + fmt)
@@ -140,14 +140,14 @@ class _Cursor:
 
 def _cameras(c: _Cursor) -> set[int]:
     (count,) = c.take("Q", "the camera count")
-    c.need(count, 24, "the camera count")
+    c.need(count, 24, f"the camera count ({count})")
     ids = set()
     for n in range(count):
         camera_id, model, width, height = c.take("iiQQ", f"camera {n}")
         if model not in _CAMERA_PARAMS or not (0 < width < 1 << 20 and 0 < height < 1 << 20):
             raise SceneError(f"{c.path}: camera {camera_id} has an unknown model id {model} or a size of "
                              f"{width}x{height}: the file is damaged; re-export the model")
-        params = c.take(f"{_CAMERA_PARAMS[model]}d", f"camera {camera_id}'s parameters")
+        params = c.take(f"{_CAMERA_PARAMS[model]}d", f"camera {camera_id}'s parameter block")
         if not all(math.isfinite(p) for p in params):
             raise SceneError(f"{c.path}: camera {camera_id} has non-finite parameters; re-export the model")
         ids.add(camera_id)
@@ -156,7 +156,7 @@ def _cameras(c: _Cursor) -> set[int]:
 
 def _images(c: _Cursor, cameras: set[int]) -> None:
     (count,) = c.take("Q", "the image count")
-    c.need(count, 64 + 1 + 8, "the image count")
+    c.need(count, 64 + 1 + 8, f"the image count ({count})")
     for n in range(count):
         image_id, *pose, camera_id = c.take("I7di", f"image {n}")
         c.name(f"image {image_id}'s name")
@@ -164,26 +164,26 @@ def _images(c: _Cursor, cameras: set[int]) -> None:
             raise SceneError(f"{c.path}: image {image_id} has a non-finite pose or an unknown camera {camera_id}: "
                              "the file is damaged; re-export the model")
         (points,) = c.take("Q", f"image {image_id}'s keypoint count")
-        c.skip(points, 24, f"image {image_id}'s keypoint count")
+        c.skip(points, 24, f"image {image_id}'s keypoints ({points})")
 
 
-def _headed_records(c: _Cursor, what: str, head: str, tail_count: str, tail_item: int) -> None:
-    """A count, then records of a fixed ``head`` and a counted tail of ``tail_item``-byte items each."""
+def _headed_records(c: _Cursor, what: str, head: str, tail_count: str, tail_item: int, tail: str) -> None:
+    """A count, then records of a fixed ``head`` and a counted ``tail`` of ``tail_item``-byte items each."""
     (count,) = c.take("Q", f"the {what} count")
-    c.need(count, struct.calcsize("<" + head + tail_count), f"the {what} count")
+    c.need(count, struct.calcsize("<" + head + tail_count), f"the {what} count ({count})")
     for n in range(count):
         record_id, *_ = c.take(head, f"{what} {n}")
-        (items,) = c.take(tail_count, f"{what} {record_id}'s list length")
-        c.skip(items, tail_item, f"{what} {record_id}'s list length")
+        (items,) = c.take(tail_count, f"{what} {record_id}'s {tail}")
+        c.skip(items, tail_item, f"{what} {record_id}'s {tail} ({items})")
 
 
 def _points(c: _Cursor) -> None:
-    _headed_records(c, "point", "Q3d3Bd", "Q", 8)  # id, xyz, rgb, error; track of (image id, keypoint index)
+    _headed_records(c, "point", "Q3d3Bd", "Q", 8, "track")  # id, xyz, rgb, error; track of (image id, keypoint index)
 
 
 def _rigs(c: _Cursor) -> None:
     (count,) = c.take("Q", "the rig count")
-    c.need(count, 8, "the rig count")
+    c.need(count, 8, f"the rig count ({count})")
     for n in range(count):
         rig_id, sensors = c.take("II", f"rig {n}")
         if sensors:
@@ -196,7 +196,7 @@ def _rigs(c: _Cursor) -> None:
 
 
 def _frames(c: _Cursor) -> None:
-    _headed_records(c, "frame", "II7d", "I", 16)  # id, rig id, pose; data of (sensor type, sensor id, data id)
+    _headed_records(c, "frame", "II7d", "I", 16, "data list")  # id, rig id, pose; data of (sensor type, sensor id, data id)
 
 
 def check_colmap_binary(model_dir: Path) -> None:
