@@ -136,14 +136,21 @@ def test_png_with_a_damaged_header_is_refused_before_the_decoder_allocates(tmp_p
 
     path = tmp_path / "a.png"
     assert cv2.imwrite(str(path), np.zeros((24, 32, 3), np.uint8))
-    data = bytearray(path.read_bytes())
-    data[24] ^= 0x12  # IHDR's bit depth: OpenCV allocated 1 GB for this 24x32 image
-    path.write_bytes(bytes(data))
-    with pytest.raises(SceneError, match="PNG header is damaged"):
-        read_rgb(path)
-    data[24] ^= 0x12
-    data[16:24] = struct.pack(">II", 1 << 16, 1 << 14)  # 2^30 pixels declared, CRC made valid again
-    data[29:33] = zlib.crc32(bytes(data[12:29])).to_bytes(4, "big")
-    path.write_bytes(bytes(data))
+    intact = path.read_bytes()
+    idat = intact.index(b"IDAT") - 4
+    bit_depth = bytearray(intact)
+    bit_depth[24] ^= 0x12  # IHDR's bit depth: OpenCV allocated 1 GB for this 24x32 image
+    idat_length = bytearray(intact)
+    idat_length[idat:idat + 4] = (1 << 30).to_bytes(4, "big")  # an IDAT of 1 GiB: OpenCV allocated it
+    for damaged in (bit_depth, idat_length):
+        path.write_bytes(bytes(damaged))
+        with pytest.raises(SceneError, match="damaged PNG"):
+            read_rgb(path)
+    huge = bytearray(intact)
+    huge[16:24] = struct.pack(">II", 1 << 16, 1 << 14)  # 2^30 pixels declared, its checksum made valid again
+    huge[29:33] = zlib.crc32(bytes(huge[12:29])).to_bytes(4, "big")
+    path.write_bytes(bytes(huge))
     with pytest.raises(SceneError, match=r"declares \d+\+ megapixels, over 268"):
         read_rgb(path)
+    path.write_bytes(intact)
+    assert read_rgb(path).shape == (24, 32, 3)

@@ -68,11 +68,8 @@ def _check_declared_size(data: np.ndarray, path: Path) -> None:
     in a PNG's IHDR made OpenCV allocate 1 GB for a 24x32 image)."""
     from PIL import Image
 
-    head = data[:33].tobytes()
-    if head.startswith(_PNG_SIGNATURE) and (len(head) < 33 or zlib.crc32(head[12:29]) != int.from_bytes(head[29:33],
-                                                                                                       "big")):
-        # OpenCV allocated 1 GB for a 32x24 PNG whose IHDR had a flipped bit-depth byte: check the chunk's CRC first
-        raise SceneError(f"cannot decode image {path}: its PNG header is damaged (checksum mismatch); re-export it")
+    if data[:8].tobytes() == _PNG_SIGNATURE:
+        _check_png_chunks(data.tobytes(), path)
     try:
         with Image.open(io.BytesIO(data.tobytes())) as im:  # reads the header only
             width, height = im.size
@@ -83,6 +80,25 @@ def _check_declared_size(data: np.ndarray, path: Path) -> None:
     if width * height >= MAX_PIXELS:
         raise SceneError(f"cannot decode image {path}: its header declares {width * height / 1e6:.0f}+ megapixels, "
                          f"over {MAX_PIXELS / 1e6:.0f} (damaged, or too large to render from)")
+
+
+def _check_png_chunks(data: bytes, path: Path) -> None:
+    """Walk a PNG's chunks: the header's checksum must hold and every declared length must fit in the file.
+    OpenCV allocated 1 GB for a 32x24 PNG with a flipped IHDR byte, and again for one whose IDAT length was
+    flipped, before finding the file damaged."""
+    at = 8
+    while at + 12 <= len(data):
+        length, kind = int.from_bytes(data[at:at + 4], "big"), data[at + 4:at + 8]
+        end = at + 12 + length
+        if end > len(data):
+            break
+        if kind == b"IHDR" and zlib.crc32(data[at + 4:end - 4]) != int.from_bytes(data[end - 4:end], "big"):
+            break
+        if kind == b"IEND":
+            return
+        at = end
+    raise SceneError(f"cannot decode image {path}: damaged PNG (a chunk at byte {at} is cut short or fails its "
+                     "checksum); re-export it")
 
 
 def exif_orientation(path: Path) -> int:
