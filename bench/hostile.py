@@ -1,20 +1,22 @@
 """Hostile inputs and faults against the real `insertnerf` command, one subprocess per step (issue 12).
 
     python3 bench/hostile.py                  # every case, one line each, then the summary
-    python3 bench/hostile.py --only render    # the cases whose name contains "render"
+    python3 bench/hostile.py --only render    # the cases whose name contains "render" (or a,b: either)
     python3 bench/hostile.py --keep /tmp/h    # build and keep the work folder there (for a post-mortem)
     python3 bench/hostile.py --installed      # run `insertnerf` from PATH instead of this checkout's code
 
 It builds its own tiny inputs (a `synth` dataset of 32 px scenes, a 2-step checkpoint of a tiny model, 16 photos
 of a ray-cast room), then runs the cases of bench/hostile_cases.py, bench/hostile_inputs.py,
-bench/hostile_finetune.py and bench/hostile_models.py. What a case must show comes from the developer brief and issue 12, not from today's
-code: bad input ends with a short error (at most 3 lines besides progress bars: the error and a hint) and an exit
+bench/hostile_finetune.py, bench/hostile_models.py, bench/hostile_races.py (two writers of one output, issue 29)
+and bench/hostile_scenefiles.py (damaged scene files, odd photo names, WebP, the bundled weights). What a case
+must show comes from the developer brief and issues 12 and 29, not from today's code: bad input ends with a short error (at most 3 lines besides progress bars: the error and a hint) and an exit
 status of 1-125; valid input exits 0;
 Ctrl-C exits non-zero; no step prints a Python traceback; every input file and every file of the user's put into
 an output folder is still there, unchanged, and nothing was written inside an input; no temporary or partial
 file is left. Read-only and unreadable cases run as the unprivileged user 65534 (setpriv) because root ignores
 permissions; disk-full cases mount a small tmpfs; both are skipped when not run as root. The last line reads
-`hostile: N cases, tracebacks T, data lost L, wrong exit E`, with the other problems, passes and skips after it;
+`hostile: N cases, tracebacks T, data lost L, corrupt C, wrong exit E`, with the other problems, passes and skips
+after it (corrupt: outputs that disagree with each other, e.g. frames that cameras.json does not list);
 the exit status is 1 when any case failed any check.
 """
 from __future__ import annotations
@@ -39,7 +41,10 @@ import hostile_cases  # noqa: E402,F401  (registers its cases; bench/ is on sys.
 import hostile_finetune  # noqa: E402,F401
 import hostile_inputs  # noqa: E402,F401
 import hostile_models  # noqa: E402,F401
-from hostile_kit import CASES, NOBODY, STEP_TIMEOUT_S, Fixtures, Plan, Workspace, run_insertnerf  # noqa: E402
+import hostile_races  # noqa: E402,F401
+import hostile_scenefiles  # noqa: E402,F401
+from hostile_kit import (CASES, NOBODY, STEP_TIMEOUT_S, Fixtures, Plan, Workspace, finish_insertnerf,  # noqa: E402
+                         resume, run_insertnerf, start_insertnerf, wait_until_holding)
 
 TRACEBACK = ("Traceback (most recent call last)", "Fatal Python error", "Check failure stack trace")
 # Temporary names the tool uses (atomic.py, poses_io.py, synth/dataset.py) and common ones it might.
@@ -58,13 +63,14 @@ class Result:
     traceback: bool = False
     lost: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
+    corrupt: list[str] = field(default_factory=list)
     wrong_exit: bool = False
     skipped: str | None = None
     seconds: float = 0.0
 
     @property
     def passed(self) -> bool:
-        return not (self.traceback or self.lost or self.problems or self.wrong_exit)
+        return not (self.traceback or self.lost or self.problems or self.corrupt or self.wrong_exit)
 
 
 def launcher(installed: bool) -> list[str]:
@@ -144,15 +150,16 @@ def run_case(name: str, command: str, plan: Plan, case_dir: Path, env: dict[str,
     for step in plan.steps:
         if step.before is not None:
             step.before()
-        rc, out, err = run_insertnerf(step.args, case_dir, env, exe, step.nobody, step.signal)
-        result.exits.append("timeout" if rc is None else str(rc))
-        wrong, problem = exit_problem(step.expect, rc, out, err)
-        result.wrong_exit |= wrong
-        if problem:
-            result.problems.append(problem)
-        if any(mark in out + err for mark in TRACEBACK):
-            result.traceback = True
-            result.problems.append("traceback: " + _last_line(err))
+        first = None
+        if step.alongside is not None:
+            first = start_insertnerf(step.alongside, case_dir, env, exe)
+            wait_until_holding(first, step.holds)
+        try:
+            _judge(result, step.expect, *run_insertnerf(step.args, case_dir, env, exe, step.nobody, step.signal))
+        finally:
+            if first is not None:
+                resume(first)
+                _judge(result, "ok", *finish_insertnerf(first))
     unlock(case_dir)
     after = digest(plan.inputs + plan.foreign, case_dir)
     result.lost = [path for path, sha in guarded.items() if after.get(path) != sha]
@@ -165,7 +172,22 @@ def run_case(name: str, command: str, plan: Plan, case_dir: Path, env: dict[str,
     extra = plan.check() if plan.check else None
     if extra:
         result.problems.append(extra)
+    corrupt = plan.consistent() if plan.consistent else None
+    if corrupt:
+        result.corrupt.append(corrupt)
     return result
+
+
+def _judge(result: Result, expect: str, rc: int | None, out: str, err: str) -> None:
+    """Record one process's exit status, message and traceback in ``result``."""
+    result.exits.append("timeout" if rc is None else str(rc))
+    wrong, problem = exit_problem(expect, rc, out, err)
+    result.wrong_exit |= wrong
+    if problem:
+        result.problems.append(problem)
+    if any(mark in out + err for mark in TRACEBACK):
+        result.traceback = True
+        result.problems.append("traceback: " + _last_line(err))
 
 
 def _last_line(text: str) -> str:
@@ -180,7 +202,7 @@ def report_line(r: Result) -> str:
         return f"{r.name:<50} {r.command:<6} SKIPPED: {r.skipped}"
     verdict = "ok" if r.passed else "FAIL " + "; ".join(
         (["wrong exit"] if r.wrong_exit else []) + ([f"lost {len(r.lost)} files ({', '.join(r.lost[:2])})"] if r.lost else [])
-        + r.problems)[:300]
+        + [f"corrupt: {c}" for c in r.corrupt] + r.problems)[:300]
     return (f"{r.name:<50} {r.command:<6} {r.seconds:4.0f}s exit {','.join(r.exits):<9} traceback {'yes' if r.traceback else 'no ':<3} "
             f"data lost {'yes' if r.lost else 'no ':<3} {verdict}")
 
@@ -190,14 +212,16 @@ def summary(results: list[Result]) -> str:
     commands = ("poses", "synth", "train", "render", "eval", "finetune")
     per_command = {c: sum(r.command == c for r in ran) for c in commands}
     return (f"hostile: {len(ran)} cases, tracebacks {sum(r.traceback for r in ran)}, "
-            f"data lost {sum(bool(r.lost) for r in ran)}, wrong exit {sum(r.wrong_exit for r in ran)}; "
+            f"data lost {sum(bool(r.lost) for r in ran)}, corrupt {sum(bool(r.corrupt) for r in ran)}, "
+            f"wrong exit {sum(r.wrong_exit for r in ran)}; "
             f"other problems {sum(bool(r.problems) and not r.traceback for r in ran)}, "
             f"passed {sum(r.passed for r in ran)}, skipped {len(results) - len(ran)}; per command {per_command}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--only", default="", help="run the cases whose name contains this text")
+    parser.add_argument("--only", default="", help="run the cases whose name contains this text (or one of these, "
+                        "comma-separated)")
     parser.add_argument("--keep", type=Path, help="work in this (new) folder and keep it")
     parser.add_argument("--installed", action="store_true", help="run `insertnerf` from PATH")
     parser.add_argument("--jobs", type=int, default=2, help="cases run at the same time")
@@ -215,7 +239,8 @@ def main() -> None:
         fixtures = Fixtures.build(work / "fixtures", env, exe)
         print(f"fixtures built in {time.monotonic() - start:.0f} s under {work}", flush=True)
         before = digest([fixtures.dir], fixtures.dir)
-        chosen = [(name, command, make) for name, command, make in CASES if args.only in name]
+        chosen = [(name, command, make) for name, command, make in CASES
+                  if any(part in name for part in args.only.split(","))]
 
         def one(entry: tuple) -> Result:
             name, command, make = entry

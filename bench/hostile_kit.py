@@ -35,6 +35,10 @@ class Step:
     nobody: bool = False
     signal: tuple[int, str, float] | None = None  # (signal, text on stderr to wait for ("" none), then delay s)
     before: Callable[[], None] | None = None  # runs just before the step (e.g. fill a disk)
+    # A first writer run alongside: started before this step, frozen (SIGSTOP) once the lock file ``holds`` names
+    # it, so that this step meets it, then let go (SIGCONT); it must exit 0 without a traceback.
+    alongside: list[str] | None = None
+    holds: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -48,11 +52,20 @@ class Plan:
     foreign: list[Path] = field(default_factory=list)
     locks: list[tuple[Path, int]] = field(default_factory=list)
     check: Callable[[], str | None] | None = None
+    consistent: Callable[[], str | None] | None = None  # the outputs agree with each other (else: corrupt)
 
 
-def run_insertnerf(args: list[str], cwd: Path, env: dict[str, str], exe: list[str], nobody: bool = False,
-                   sig: tuple[int, str, float] | None = None) -> tuple[int | None, str, str]:
-    """Run one step; with ``sig`` send that signal to its process group once ``marker`` shows on stderr."""
+@dataclass
+class Running:
+    """A started `insertnerf` process and the threads draining its output."""
+
+    proc: subprocess.Popen
+    chunks: dict[str, list[bytes]]
+    readers: list[threading.Thread]
+
+
+def start_insertnerf(args: list[str], cwd: Path, env: dict[str, str], exe: list[str],
+                     nobody: bool = False) -> Running:
     drop = ["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups", "--inh-caps=-all"]
     proc = subprocess.Popen([*(drop if nobody else []), *exe, *args], cwd=cwd, env=env, stdin=subprocess.DEVNULL,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
@@ -61,8 +74,39 @@ def run_insertnerf(args: list[str], cwd: Path, env: dict[str, str], exe: list[st
                for key, pipe in (("out", proc.stdout), ("err", proc.stderr))]
     for reader in readers:
         reader.start()
+    return Running(proc, chunks, readers)
+
+
+def wait_until_holding(run: Running, lock: Path) -> None:
+    """Freeze ``run`` (its whole process group) once ``lock`` names it, or return when it ended first."""
+    deadline = time.monotonic() + STEP_TIMEOUT_S
+    while run.proc.poll() is None and time.monotonic() < deadline:
+        try:
+            if lock.read_text().split()[:1] == [str(run.proc.pid)]:
+                os.killpg(run.proc.pid, signal.SIGSTOP)
+                return
+        except (OSError, IndexError):
+            pass
+        time.sleep(0.01)
+
+
+def resume(run: Running) -> None:
+    if run.proc.poll() is None:
+        os.killpg(run.proc.pid, signal.SIGCONT)
+
+
+def run_insertnerf(args: list[str], cwd: Path, env: dict[str, str], exe: list[str], nobody: bool = False,
+                   sig: tuple[int, str, float] | None = None) -> tuple[int | None, str, str]:
+    """Run one step; with ``sig`` send that signal to its process group once ``marker`` shows on stderr."""
+    run = start_insertnerf(args, cwd, env, exe, nobody)
     if sig is not None:
-        _signal_when(proc, chunks["err"], *sig)
+        _signal_when(run.proc, run.chunks["err"], *sig)
+    return finish_insertnerf(run)
+
+
+def finish_insertnerf(run: Running) -> tuple[int | None, str, str]:
+    """Wait for ``run`` (killed after STEP_TIMEOUT_S): exit status (None on timeout), stdout, stderr."""
+    proc, chunks, readers = run.proc, run.chunks, run.readers
     try:
         rc: int | None = proc.wait(timeout=STEP_TIMEOUT_S)
     except subprocess.TimeoutExpired:

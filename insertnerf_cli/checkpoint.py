@@ -19,6 +19,7 @@ from . import __version__
 from .atomic import atomic_path
 from .config import ModelConfig, config_from_json, config_to_json
 from .errors import UserError
+from .outdir import BUNDLED_WEIGHTS_DIR
 
 CHECKPOINT_FORMAT = "insertnerf-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -161,7 +162,7 @@ def load_model(path: str | Path, device: torch.device) -> tuple[nn.Module, Model
 
 def bundled_checkpoint(model: str = DEFAULT_MODEL) -> Path:
     """A pretrained generator shipped in the package: "fast" (32+16 samples, the default) or "full" (64+64)."""
-    path = Path(__file__).resolve().parent / "weights" / BUNDLED_MODELS[model]
+    path = BUNDLED_WEIGHTS_DIR / BUNDLED_MODELS[model]
     if not path.is_file():
         raise UserError(f"this install has no bundled {model} weights ({path} is missing); pass "
                         "--checkpoint RUN_DIR/checkpoints/last.pt from `insertnerf train`.")

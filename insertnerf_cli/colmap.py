@@ -24,8 +24,9 @@ import torch
 
 from .cameras import Cameras
 from .errors import UserError
+from .lock import lock_output, releases_output_locks
 from .posecheck import MIN_PAIR_INLIERS, CheckLimits, PairMatches, PoseCheck, check_relative_poses
-from .poses_io import InputImages, ModelArrays, check_output, read_inputs, staging_folder, write_scene
+from .poses_io import OWNER, InputImages, ModelArrays, check_output, read_inputs, staging_folder, write_scene
 
 Report = Callable[[str], None]
 Matcher = Literal["auto", "exhaustive", "sequential"]
@@ -176,6 +177,7 @@ def _num_threads(requested: int) -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
+@releases_output_locks
 def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
                    options: PosesOptions = PosesOptions(), report: Report = _stderr) -> PosesResult:
     """Estimate camera poses of the images in ``images_dir`` and write a posed scene folder to ``out_dir``.
@@ -190,10 +192,11 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
     """
     images_dir, out_dir = Path(images_dir), Path(out_dir)
     check_output(images_dir, out_dir, options.overwrite)
+    lock_output(out_dir, OWNER)
     stages = _Stages(report, total=6)
     stages.start("reading images", str(images_dir))
     with staging_folder(out_dir) as tmp, _pycolmap_log(options.verbose):
-        inputs = read_inputs(images_dir, tmp / "colmap" / "upright")
+        inputs = read_inputs(images_dir, tmp / "colmap" / "input")
         stages.done(f"{len(inputs.names)} images of {inputs.width}x{inputs.height}")
         work = tmp / "colmap"
         matcher = _run_features_and_matching(inputs, work / "database.db", options, stages)
@@ -202,11 +205,12 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
         stages.start("writing the scene", "undistorting to PINHOLE")
         undistorted = _undistort(model_dir, inputs.folder, tmp)
         shutil.rmtree(work / "mapping")
-        shutil.rmtree(work / "upright", ignore_errors=True)  # EXIF-turned copies, now in images/ undistorted
+        shutil.rmtree(work / "input", ignore_errors=True)  # copies made for COLMAP, now in images/ undistorted
         scene = write_scene(tmp, _model_arrays(undistorted))
         stages.done(f"{len(scene.names)} images, transforms.json, sparse.ply, cameras.ply")
     registered = set(scene.names)
-    result = PosesResult(out_dir, tuple(scene.names), tuple(n for n in inputs.names if n not in registered),
+    result = PosesResult(out_dir, tuple(scene.names), tuple(inputs.original(n) for n in inputs.names
+                                                            if n not in registered),
                          scene.cameras, scene.near, scene.far, scene.num_points,
                          float(rec.compute_mean_reprojection_error()), check, matcher, tuple(stages.times))
     _report_result(result, report)
@@ -260,7 +264,7 @@ def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads:
     with pycolmap.Database.open(db_path) as db:
         read = {image.name for image in db.read_all_images()}
         stages.done(f"{db.num_keypoints()} keypoints in {db.num_images()} images")
-    missing = [name for name in inputs.names if name not in read]
+    missing = [inputs.original(name) for name in inputs.names if name not in read]
     if missing:
         raise UserError(f"COLMAP could not decode {len(missing)} image(s): {', '.join(missing[:10])}"
                         f"{' ...' if len(missing) > 10 else ''}; convert them to JPEG or PNG.")

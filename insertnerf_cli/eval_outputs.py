@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 
 from .errors import UserError
-from .outdir import OutputRecord, check_output
+from .outdir import OutputRecord, check_output, holds_files
 from .outputs import FRAME_GLOB, frame_name, to_uint8
 
 OWNER = "eval"
@@ -33,7 +33,7 @@ def check_eval_outputs(scene_dir: Path, checkpoint: Path | None, json_path: Path
         return
     if json_path is not None and Path(json_path).exists():
         raise UserError(f"{json_path} exists; pass --overwrite to replace it or choose another --json")
-    if out_dir is not None and Path(out_dir).is_dir() and any(Path(out_dir).iterdir()):
+    if out_dir is not None and holds_files(Path(out_dir)):
         raise UserError(f"{out_dir} is not empty; pass --overwrite to replace the images insertnerf wrote "
                         "there (other files are kept) or choose another --out")
 

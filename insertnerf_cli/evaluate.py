@@ -17,6 +17,7 @@ from .atomic import write_json
 from .config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from .errors import UserError
 from .eval_outputs import REPORT_HTML, check_eval_outputs, prepare_side_by_sides, side_by_side, side_by_side_name
+from .lock import lock_output, releases_output_locks
 from .metrics import SSIM_WINDOW, psnr, ssim
 from .outputs import write_png
 from .view_renderer import ViewRenderer, checkpoint_path, load_model
@@ -117,6 +118,7 @@ def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
     return run_eval(scene_dir, config).reports[0]
 
 
+@releases_output_locks
 def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     """Render each held-out view from its nearest non-held-out views at every count of ``config.counts``, score
     it against the photo, and write the side-by-sides, report.html and JSON report that ``config`` asks for."""
@@ -126,6 +128,8 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     counts = config.counts
     out_dir = Path(config.out_dir) if config.out_dir is not None else None
     check_eval_outputs(Path(scene_dir), config.checkpoint, config.json_path, out_dir, config.overwrite)
+    if out_dir is not None:
+        lock_output(out_dir, "eval")  # one writer per folder (lock.py)
     scene, _ = normalize_scene(load_scene(Path(scene_dir)))
     held = held_out_views(scene, config.max_views)
     size = scene.size_for(config.resolution)

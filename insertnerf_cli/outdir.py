@@ -8,7 +8,8 @@ scene, a posed scene); removal then follows that record too. Folders written by 
 cleared by the exact file-name patterns those versions wrote, never wholesale.
 
 The location checks run before any work: an output that is, holds or lies inside an input is refused (resolved
-paths, symlinks followed), and so is one whose parent is a file or not writable.
+paths, symlinks followed), and so is one whose parent is a file or not writable. The package's bundled weights
+folder is an input of every command.
 """
 from __future__ import annotations
 
@@ -19,8 +20,12 @@ from typing import Iterable, Sequence
 
 from .atomic import stray_temporaries, write_json
 from .errors import UserError
+from .lock import is_lock_name
 
 RECORD_NAME = ".insertnerf-outputs.json"
+# The pretrained weights shipped in the package (checkpoint.bundled_checkpoint): an input of every command, never
+# an output, whatever a user passes (`finetune --out <site-packages>/insertnerf_cli/weights/insertnerf.pt`).
+BUNDLED_WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 _RECORD_KIND = "insertnerf outputs"
 
 
@@ -78,8 +83,9 @@ def check_writable(path: Path, is_dir: bool, what: str = "--out") -> None:
 
 def check_output(out: Path, inputs: Sequence[Path | None], is_dir: bool = True, what: str = "--out",
                  kind: str = "input") -> None:
-    """Both checks above: the output is away from the inputs and can be written."""
+    """Both checks above: the output is away from the inputs and from the bundled weights, and can be written."""
     check_not_inside_inputs(out, inputs, what, kind)
+    check_not_inside_inputs(out, [BUNDLED_WEIGHTS_DIR], what, kind="package's bundled weights folder")
     check_writable(out, is_dir, what)
 
 
@@ -184,7 +190,8 @@ def remove_if_empty(folder: Path) -> None:
 def record_tree(folder: Path, owner: str) -> None:
     """Record every file and folder now under ``folder`` in its own record (for a folder built whole in a
     temporary place and renamed into the output)."""
-    names = [p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.name != RECORD_NAME]
+    names = [p.relative_to(folder).as_posix() for p in folder.rglob("*")
+             if p.name != RECORD_NAME and not is_lock_name(p.name)]
     OutputRecord(folder, owner).claim(*names)
 
 
@@ -219,4 +226,10 @@ def foreign_entries(root: Path, owner: str) -> list[str]:
         return []
     ours = {n.split("/")[0] for n in OutputRecord(root, owner).paths}
     ours |= {t.name for n in ours for t in stray_temporaries(root / n)}
-    return sorted(p.name for p in root.iterdir() if p.name != RECORD_NAME and p.name not in ours)
+    return sorted(p.name for p in root.iterdir() if p.name != RECORD_NAME and p.name not in ours
+                  and not is_lock_name(p.name))
+
+
+def holds_files(folder: Path) -> bool:
+    """Whether ``folder`` holds anything besides insertnerf's lock files (a killed run may leave one)."""
+    return folder.is_dir() and any(not is_lock_name(p.name) for p in folder.iterdir())

@@ -17,7 +17,9 @@ from tqdm import tqdm
 
 from .atomic import write_bytes
 from .config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
+from .lock import lock_output, releases_output_locks
 from .outdir import check_output
+from .outputs import OWNER as RENDER_OWNER
 from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, claim_render_outputs, depth_scale_for,
                       depth_to_float, depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths, prepare_out_dir,
                       write_cameras_json, write_frame, write_state, write_video)
@@ -129,6 +131,7 @@ def _plan(scene, config: RenderConfig):
     return scene, similarity, path
 
 
+@releases_output_locks
 def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfig) -> RenderSummary:
     """Render a camera path of the scene in ``scene_dir`` into ``out_dir`` (see outputs.py for the files).
 
@@ -150,6 +153,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     model = load_model(checkpoint, config.device)
     state = _render_state(scene_dir, checkpoint, config, photos and photos.fingerprint)
     created = not out_dir.exists()
+    lock_output(out_dir, RENDER_OWNER)  # one writer per folder (lock.py)
     prepare_out_dir(out_dir, state, config.overwrite)
     scene, similarity, path = planned or _plan(posed_photos(photos, out_dir, created), config)
     if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT

@@ -23,7 +23,7 @@ import torch
 from .atomic import process_alive
 from .cameras import Cameras
 from .errors import SceneError, UserError
-from .outdir import OutputRecord, check_output as check_output_path, move_into, record_tree
+from .outdir import OutputRecord, check_output as check_output_path, holds_files, move_into, record_tree
 from .preview import write_camera_frustums, write_point_cloud
 from .scenes.images import IMAGE_EXTENSIONS, exif_orientation, find_images, read_rgb
 from .scenes.writers import write_nerfstudio_transforms
@@ -33,6 +33,8 @@ MIN_IMAGES = 3
 DEPTH_PERCENTILES = (0.1, 99.9)
 OWNER = "poses"  # the name of its list in an output record (outdir.py)
 _PARTIAL = ".partial-"
+# Formats OpenCV decodes (so scenes and `poses` accept them) but COLMAP's own image reader does not.
+COLMAP_UNDECODABLE = (".webp",)
 # What `poses` wrote before outputs were recorded: the only names --overwrite removes from such a folder.
 LEGACY_OUTPUTS = ("transforms.json", "sparse.ply", "cameras.ply", "images/*", "images/", "colmap/database.db",
                   "colmap/sparse/0/*", "colmap/sparse/0/", "colmap/sparse/", "colmap/")
@@ -44,8 +46,10 @@ class InputImages:
 
     Attributes:
         source: the user's folder.
-        folder: where SfM reads them (``source``, or upright copies when some carry an EXIF rotation).
-        names: file names, sorted.
+        folder: where SfM reads them: ``source``, or copies made for COLMAP (colmap_copies) when some image
+            carries an EXIF rotation, is in a format COLMAP cannot decode (WebP) or has a non-UTF-8 name.
+        names: the names in ``folder`` (those the scene's images/ get), in the order of the sorted originals.
+        originals: the user's file names, printable (undecodable bytes as %XX), in the same order.
         height, width: the common image size (after EXIF orientation).
     """
 
@@ -54,6 +58,11 @@ class InputImages:
     names: tuple[str, ...]
     height: int
     width: int
+    originals: tuple[str, ...] = ()
+
+    def original(self, name: str) -> str:
+        """The user's file name of the COLMAP name ``name``."""
+        return dict(zip(self.names, self.originals or self.names)).get(name, name)
 
 
 @dataclass(frozen=True)
@@ -92,7 +101,7 @@ def check_output(images_dir: Path, out_dir: Path, overwrite: bool) -> None:
     """Refuse an output folder that is, holds or lies inside the input images, cannot be written, or holds
     files already (without ``overwrite``)."""
     check_output_path(out_dir, [images_dir], kind="input images")
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+    if holds_files(out_dir) and not overwrite:
         raise UserError(f"{out_dir} already exists; pass --overwrite to replace the scene files insertnerf wrote "
                         "there (other files are kept), or choose another --out.")
 
@@ -128,29 +137,26 @@ def _move_into_place(tmp: Path, out_dir: Path) -> None:
     move_into(tmp, out_dir, OWNER)
 
 
-def read_inputs(images_dir: Path, upright_dir: Path) -> InputImages:
+def read_inputs(images_dir: Path, copy_dir: Path) -> InputImages:
     """Find and decode every image; refuse too few, unreadable or mixed-size sets.
 
-    Images with an EXIF rotation are written upright to ``upright_dir`` (COLMAP ignores the tag) so that the
-    poses, the undistorted images and every later reader see the same pixels.
+    When an image has an EXIF rotation (COLMAP ignores the tag), is WebP (COLMAP cannot decode it) or has a name
+    that is not UTF-8 (pycolmap takes text), every image is copied to ``copy_dir`` as COLMAP can read it, so that
+    the poses, the undistorted images and every later reader see the same pixels.
     """
     paths = find_images(images_dir)
     if len(paths) < MIN_IMAGES:
         raise UserError(f"found {len(paths)} image(s) in {images_dir} (extensions {', '.join(IMAGE_EXTENSIONS)}); "
                         f"need at least {MIN_IMAGES} overlapping photos of one scene.")
-    webp = [p.name for p in paths if p.suffix.lower() == ".webp"]  # scenes may use them, COLMAP cannot decode them
-    if webp:
-        raise UserError(f"COLMAP cannot read WebP images: {len(webp)} in {images_dir} (e.g. {webp[0]}); convert them "
-                        "to PNG or JPEG first (e.g. `mogrify -format png *.webp`, then remove the .webp files).")
     sizes: dict[tuple[int, int], list[str]] = {}
     unreadable, rotated = [], []
     for path in paths:
         try:
             h, w = read_rgb(path).shape[:2]
         except SceneError:
-            unreadable.append(path.name)
+            unreadable.append(printable_name(path.name))
             continue
-        sizes.setdefault((h, w), []).append(path.name)
+        sizes.setdefault((h, w), []).append(printable_name(path.name))
         if exif_orientation(path) != 1:
             rotated.append(path)
     if unreadable:
@@ -161,18 +167,46 @@ def read_inputs(images_dir: Path, upright_dir: Path) -> InputImages:
         raise UserError(f"the images in {images_dir} have {len(sizes)} different sizes ({listed}); one camera "
                         "is assumed, so resize them to one size first.")
     (height, width), = sizes
-    folder = _write_upright(paths, upright_dir) if rotated else images_dir
-    return InputImages(images_dir, folder, tuple(p.name for p in paths), height, width)
+    originals = tuple(printable_name(p.name) for p in paths)
+    if not rotated and not any(_needs_copy(p) for p in paths):
+        return InputImages(images_dir, images_dir, tuple(p.name for p in paths), height, width, originals)
+    names = colmap_copies(paths, set(rotated), copy_dir)
+    return InputImages(images_dir, copy_dir, names, height, width, originals)
 
 
-def _write_upright(paths: list[Path], folder: Path) -> Path:
-    """Copies of every image with the EXIF orientation applied to the pixels (8-bit, same names)."""
+def printable_name(name: str) -> str:
+    """A file name as UTF-8 text: bytes that are not UTF-8 (os.fsdecode's surrogates) become %XX."""
+    return "".join(f"%{ord(c) - 0xDC00:02X}" if 0xDC80 <= ord(c) <= 0xDCFF else c for c in name)
+
+
+def _needs_copy(path: Path) -> bool:
+    """COLMAP cannot take this file as it is: a format its decoder lacks, or a name that is not UTF-8 text."""
+    return path.suffix.lower() in COLMAP_UNDECODABLE or printable_name(path.name) != path.name
+
+
+def colmap_copies(paths: list[Path], rotated: set[Path], folder: Path) -> tuple[str, ...]:
+    """Copy every image into ``folder`` (inside the temporary output, never the input) for COLMAP: the bytes as
+    they are when COLMAP can read them, else decoded and written as PNG (lossless) with the EXIF rotation applied;
+    names made UTF-8 (%XX) and .png for converted files. Returns the new names, in the order of ``paths``."""
     folder.mkdir(parents=True, exist_ok=True)
+    names: list[str] = []
     for path in paths:
+        convert = path in rotated or path.suffix.lower() in COLMAP_UNDECODABLE
+        name = printable_name(path.name)
+        if path.suffix.lower() in COLMAP_UNDECODABLE:
+            name = f"{Path(name).stem}.png"
+        stem, suffix, n = Path(name).stem, Path(name).suffix, 1
+        while name in names:
+            name, n = f"{stem}-{n}{suffix}", n + 1
+        names.append(name)
+        if not convert:
+            shutil.copyfile(path, folder / name)
+            continue
         rgb = (read_rgb(path) * 255.0 + 0.5).astype(np.uint8)
-        if not cv2.imwrite(str(folder / path.name), rgb[..., ::-1]):
-            raise UserError(f"cannot write an upright copy of {path.name} to {folder}; check free disk space.")
-    return folder
+        if not cv2.imwrite(str(folder / name), rgb[..., ::-1]):
+            raise UserError(f"cannot write a copy of {printable_name(path.name)} for COLMAP to {folder}; check "
+                            "free disk space.")
+    return tuple(names)
 
 
 def _depth_bounds(model: ModelArrays) -> tuple[torch.Tensor, torch.Tensor]:

@@ -254,16 +254,3 @@ def test_ctrl_c_while_torch_loads_is_one_line(tmp_path: Path, scene: Path) -> No
     assert child.returncode == 130, err
     assert "Traceback" not in err and "terminate called" not in err
     assert err.strip().splitlines()[-1].startswith("Interrupted")
-
-
-def test_poses_refuses_webp_photos_that_colmap_cannot_decode(tmp_path: Path) -> None:
-    import cv2
-
-    photos = tmp_path / "photos"
-    photos.mkdir()
-    known = known_scene()
-    for i, image in enumerate(known.images[:4]):
-        assert cv2.imwrite(str(photos / f"p{i}.{'webp' if i == 2 else 'png'}"), image[..., ::-1])
-    line = error_line(CliRunner().invoke(cli, ["poses", str(photos), "--out", str(tmp_path / "scene")]))
-    assert "COLMAP cannot read WebP images: 1 in" in line and "p2.webp" in line and "PNG or JPEG" in line
-    assert not (tmp_path / "scene").exists()

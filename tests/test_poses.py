@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -130,6 +131,24 @@ def test_exif_rotated_photos_are_turned_upright_for_sfm(tmp_path: Path) -> None:
     assert cv2.imread(str(inputs.folder / "p0.jpg")).shape[:2] == (64, 48)
 
 
+def test_webp_and_non_utf8_names_get_colmap_copies_outside_the_input(tmp_path: Path) -> None:
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    names = ["a.png", "b.webp", os.fsdecode(b"caf\xe9.png"), "b.png"]
+    images = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in names]
+    for name, img in zip(names, images):
+        ok, data = cv2.imencode(Path(name).suffix, img, [cv2.IMWRITE_WEBP_QUALITY, 101])  # 101: lossless WebP
+        (folder / name).write_bytes(data.tobytes())
+    before = sorted(os.listdir(os.fsencode(folder)))
+    inputs = read_inputs(folder, tmp_path / "copies")
+    assert inputs.folder == tmp_path / "copies" and sorted(os.listdir(os.fsencode(folder))) == before
+    assert inputs.names == ("a.png", "b.png", "b-1.png", "caf%E9.png")  # sorted originals: a, b.png, b.webp, caf
+    assert inputs.original("b-1.png") == "b.webp" and inputs.original("caf%E9.png") == "caf%E9.png"
+    for name, original in zip(inputs.names, ["a.png", "b.png", "b.webp", os.fsdecode(b"caf\xe9.png")]):
+        assert np.array_equal(cv2.imread(str(inputs.folder / name)), images[names.index(original)]), name
+
+
 # ---------------------------------------------------------------- the two-view check, on exact geometry
 def _two_views(rotation_deg: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points seen by two cameras: camera 2 = rotate about y by ``rotation_deg`` and step sideways.
@@ -240,11 +259,18 @@ def test_real_sfm_on_rendered_views(tmp_path: Path) -> None:
     bench = _bench_scene()
     truth = bench.render_scene(views=8, size=200, arc_deg=70.0)
     (tmp_path / "photos").mkdir()
-    for i, img in enumerate(truth.images):
-        cv2.imwrite(str(tmp_path / "photos" / f"view_{i:02d}.png"), img[..., ::-1])
+    # One photo WebP (COLMAP cannot decode it) and one named in Latin-1 (pycolmap takes UTF-8 text only): both are
+    # handed to COLMAP as converted copies in the temporary output, never written inside photos/.
+    names = [os.fsdecode(f"view_{i:02d}".encode() + (b"\xe9" if i == 5 else b"")) + (".webp" if i == 3 else ".png")
+             for i in range(len(truth.images))]
+    for name, img in zip(names, truth.images):
+        ok, data = cv2.imencode(Path(name).suffix, img[..., ::-1], [cv2.IMWRITE_WEBP_QUALITY, 101])
+        (tmp_path / "photos" / name).write_bytes(data.tobytes())
     result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
     assert result.exit_code == 0, result.output
     assert "8/8 images registered" in result.output
+    assert sorted(p.name for p in (tmp_path / "scene" / "images").iterdir())[3:6] == [
+        "view_03.png", "view_04.png", "view_05%E9.png"]
     scene_dir = tmp_path / "scene"
     for name in ("transforms.json", "sparse.ply", "cameras.ply", "colmap/database.db", "colmap/sparse/0/images.bin"):
         assert (scene_dir / name).is_file(), name

@@ -17,6 +17,7 @@ from tqdm import tqdm
 from ..checkpoint import bundled_checkpoint, build_model, read_checkpoint, save_checkpoint
 from ..config import DEFAULT_RESOLUTION, DEFAULT_VIEWS, ModelConfig
 from ..errors import UserError
+from ..lock import lock_output, releases_output_locks
 from ..outdir import check_output
 from ..model import InsertNeRF, LossTerms
 from ..training.data import ImageCache, TrainScene, make_batch
@@ -101,6 +102,7 @@ def check_out_file(out: Path, scene_dir: Path, overwrite: bool, base: Path | Non
         raise UserError(f"{out} exists; pass --overwrite to replace it or choose another --out")
 
 
+@releases_output_locks
 def finetune(scene_dir: str | Path, out: str | Path, config: FinetuneConfig, device: torch.device,
              base: Path | None = None, overwrite: bool = False, on_step: Callable[[Progress], None] | None = None,
              say: Say | None = None) -> FinetuneResult:
@@ -114,6 +116,7 @@ def finetune(scene_dir: str | Path, out: str | Path, config: FinetuneConfig, dev
     say = say or _tqdm_say
     scene_dir, out = Path(scene_dir), Path(out)
     check_out_file(out, scene_dir, overwrite, base)
+    lock_output(out, "finetune", is_dir=False)
     checkpoint = read_checkpoint(base if base is not None else bundled_checkpoint())
     scene = finetune_scene(scene_dir, config.resolution)
     torch.manual_seed(config.seed)

@@ -16,6 +16,7 @@ from torch import Tensor
 from ..cameras import Cameras, w2c_to_c2w
 from ..errors import SceneError
 from .base import Scene
+from .binfiles import check_colmap_binary
 from .common import ReadViews, assemble, safe_path
 from .geometry import point_depths
 from .images import Distortion
@@ -71,24 +72,36 @@ def _observed_depths(rec, image_ids: list[int], cameras: Cameras) -> list[Tensor
     return [xyz_t[rows] @ z_rows[n, :3] + z_rows[n, 3] for n, rows in enumerate(index)]
 
 
+def _first_line(err: Exception, limit: int = 160) -> str:
+    """pycolmap's message, one line: a failed check carries COLMAP's source position and a long expression."""
+    lines = [line.strip() for line in str(err).splitlines() if line.strip()] or [type(err).__name__]
+    line = lines[0]
+    return line if len(line) <= limit else line[:limit] + "..."
+
+
 def read_colmap(root: Path, images: str, background: tuple[float, float, float]) -> Scene:
     import pycolmap
 
     model_dir = find_model(root)
+    check_colmap_binary(model_dir)  # pycolmap trusts declared counts: a cut-short file could allocate without bound
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
+        names = {i: im.name for i, im in rec.images.items()}  # a text model's non-UTF-8 name fails here
+    except UnicodeDecodeError as err:
+        raise SceneError(f"{model_dir}: an image name is not valid UTF-8 ({err.object[err.start:err.end + 8]!r}); "
+                         "rename the image to a UTF-8 name and re-export the model") from None
     except Exception as err:  # noqa: BLE001 - pycolmap raises plain RuntimeError/ValueError on bad files
-        raise SceneError(f"cannot read the COLMAP model in {model_dir}: {str(err).strip()}; re-export the model "
+        raise SceneError(f"cannot read the COLMAP model in {model_dir}: {_first_line(err)}; re-export the model "
                          "(or run `insertnerf poses` on the images)") from None
     # One pass over the images: each rec.images[i] look-up costs a walk over that image's keypoints.
-    registered = sorted(((im.name, i, im) for i, im in rec.images.items() if im.has_pose), key=lambda x: x[0])
+    registered = sorted(((names[i], i, im) for i, im in rec.images.items() if im.has_pose), key=lambda x: x[0])
     if not registered:
         raise SceneError(f"{model_dir}: the COLMAP model has no registered images")
     image_ids = [i for _, i, _ in registered]
     paths, Ks, w2c, sizes, dists = [], [], [], [], []
-    for _, _, im in registered:
+    for name, _, im in registered:
         cam = rec.cameras[im.camera_id]
-        paths.append(safe_path(root, Path(images) / im.name, "image name"))
+        paths.append(safe_path(root, Path(images) / name, "image name"))
         dists.append(_distortion(cam.model.name, np.asarray(cam.params), f"{model_dir} camera {im.camera_id}"))
         Ks.append(torch.from_numpy(np.asarray(cam.calibration_matrix(), dtype=np.float64)))
         sizes.append((int(cam.height), int(cam.width)))

@@ -139,6 +139,10 @@ def _first_bad(ok: Tensor) -> int | None:
     return int(bad[0, 0]) if len(bad) else None
 
 
+# Longest image side a camera may declare (a 2^17 px side is already past any single photo); more is a damaged file.
+MAX_IMAGE_SIDE = 1 << 17
+
+
 def check_views(views: ReadViews) -> None:
     """Refuse what no format may hold: image sizes, focal lengths or poses that are not finite and positive, or
     poses that are not rigid. They come from broken files and would poison everything after.
@@ -149,9 +153,9 @@ def check_views(views: ReadViews) -> None:
     where = views.source or views.root
     fix = "correct the file or re-export the scene (e.g. with `insertnerf poses`)"
     for i, (h, w) in enumerate(views.sizes or []):
-        if h <= 0 or w <= 0:
-            raise SceneError(f"{where}: the camera of {_view_name(views, i)} is for a {w}x{h} image; width and "
-                             f"height must be positive; {fix}")
+        if not (0 < h <= MAX_IMAGE_SIDE and 0 < w <= MAX_IMAGE_SIDE):  # a damaged file may say 6e22
+            raise SceneError(f"{where}: the camera of {_view_name(views, i)} is for a {w:.6g}x{h:.6g} image; width "
+                             f"and height must be positive and at most {MAX_IMAGE_SIDE}; {fix}")
     K, c2w = views.K.to(torch.float64), views.c2w.to(torch.float64)
     focal = torch.stack([K[:, 0, 0], K[:, 1, 1]], dim=-1)  # [N, 2]
     i = _first_bad(torch.isfinite(K).all(dim=(1, 2)) & (focal >= MIN_FOCAL_PX).all(dim=-1))

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 import re
-import zipfile
 from pathlib import Path
 
 import cv2
@@ -24,6 +23,7 @@ import torch
 from ..cameras import w2c_to_c2w
 from ..errors import SceneError, os_error_message
 from .base import Scene
+from .binfiles import load_npz
 from .common import ReadViews, assemble, safe_path
 from .images import find_images, image_size
 from .values import matrix, number
@@ -57,8 +57,8 @@ def _parse_cam(path: Path) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]
         raise SceneError(os_error_message(err)) from None
     except ValueError as err:
         raise SceneError(f"cannot read DTU camera file {path}: {err}") from None
-    if not depth:
-        raise SceneError(f"{path}: no 'depth_min depth_interval' line after the intrinsics")
+    if len(depth) < 2:  # a file cut short keeps depth_min alone
+        raise SceneError(f"{path}: no 'depth_min depth_interval' line after the intrinsics (cut short?)")
     matrix(w2c, "extrinsic", path, [(4, 4)])
     number(K[0, 2], "intrinsic cx", path, low=0.0)  # _fit_K divides by it
     matrix(K, "intrinsic", path, [(3, 3)])
@@ -139,12 +139,7 @@ def read_idr(root: Path, images: str, background: tuple[float, float, float]) ->
     folder = safe_path(root, images, "images folder")
     folder = folder if folder.is_dir() else root / "image"
     paths = find_images(folder) if folder.is_dir() else []
-    try:
-        data = dict(np.load(source, allow_pickle=False))
-    except OSError as err:
-        raise SceneError(os_error_message(err)) from None
-    except (ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise SceneError(f"cannot read {source}: {err or 'empty file'}") from None
+    data = load_npz(source)  # each entry's declared shape checked against its bytes before allocating
     if not paths or any(f"world_mat_{i}" not in data for i in range(len(paths))):
         raise SceneError(f"{source}: needs world_mat_0..world_mat_{len(paths) - 1} for the {len(paths)} images "
                          f"in {folder.name}/")

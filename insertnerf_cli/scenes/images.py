@@ -5,7 +5,9 @@ with Pillow and applied here, so the same photo reads the same way whatever the 
 """
 from __future__ import annotations
 
+import io
 import os
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -18,6 +20,8 @@ from ..errors import SceneError, os_error_message
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 
 _EXIF_ORIENTATION = 0x0112
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+MAX_PIXELS = 1 << 28  # 268 megapixels: past any photo this tool renders from; more is a damaged header
 
 
 @dataclass(frozen=True)
@@ -52,10 +56,49 @@ def _decode(path: Path) -> np.ndarray:
         data = np.fromfile(path, dtype=np.uint8)  # fromfile + imdecode copes with any path encoding
     except OSError as err:
         raise SceneError(os_error_message(err)) from None
+    _check_declared_size(data, path)
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise SceneError(f"cannot decode image {path}: not a readable image file (corrupt or unsupported)")
     return img
+
+
+def _check_declared_size(data: np.ndarray, path: Path) -> None:
+    """Refuse a header that declares more than MAX_PIXELS pixels before the decoder allocates them (one flipped bit
+    in a PNG's IHDR made OpenCV allocate 1 GB for a 24x32 image)."""
+    from PIL import Image
+
+    if data[:8].tobytes() == _PNG_SIGNATURE:
+        _check_png_chunks(data.tobytes(), path)
+    try:
+        with Image.open(io.BytesIO(data.tobytes())) as im:  # reads the header only
+            width, height = im.size
+    except Image.DecompressionBombError:  # Pillow's own limit (about 179 megapixels) was passed
+        width, height = MAX_PIXELS, 1
+    except Exception:  # noqa: BLE001 - a header Pillow cannot parse is left to OpenCV's decoder
+        return
+    if width * height >= MAX_PIXELS:
+        raise SceneError(f"cannot decode image {path}: its header declares {width * height / 1e6:.0f}+ megapixels, "
+                         f"over {MAX_PIXELS / 1e6:.0f} (damaged, or too large to render from)")
+
+
+def _check_png_chunks(data: bytes, path: Path) -> None:
+    """Walk a PNG's chunks: the header's checksum must hold and every declared length must fit in the file.
+    OpenCV allocated 1 GB for a 32x24 PNG with a flipped IHDR byte, and again for one whose IDAT length was
+    flipped, before finding the file damaged."""
+    at = 8
+    while at + 12 <= len(data):
+        length, kind = int.from_bytes(data[at:at + 4], "big"), data[at + 4:at + 8]
+        end = at + 12 + length
+        if end > len(data):
+            break
+        if kind == b"IHDR" and zlib.crc32(data[at + 4:end - 4]) != int.from_bytes(data[end - 4:end], "big"):
+            break
+        if kind == b"IEND":
+            return
+        at = end
+    raise SceneError(f"cannot decode image {path}: damaged PNG (a chunk at byte {at} is cut short or fails its "
+                     "checksum); re-export it")
 
 
 def exif_orientation(path: Path) -> int:

@@ -12,8 +12,9 @@ import numpy as np
 import torch
 
 from ..cameras import intrinsics, llff_to_opencv
-from ..errors import SceneError, os_error_message
+from ..errors import SceneError
 from .base import Scene
+from .binfiles import load_npy
 from .common import ReadViews, assemble, safe_path
 from .images import find_images
 
@@ -23,12 +24,7 @@ _ROW = 17  # 3x5 pose-and-hwf matrix + near + far
 
 def load_poses_bounds(path: Path) -> np.ndarray:
     """The [N, 17] array, checked (no pickles: the file is data, not code)."""
-    try:
-        data = np.load(path, allow_pickle=False)
-    except OSError as err:
-        raise SceneError(os_error_message(err)) from None
-    except (ValueError, EOFError) as err:
-        raise SceneError(f"cannot read {path}: {err or 'empty file'}") from None
+    data = load_npy(path)  # checks the header's shape against the bytes held before allocating
     if data.ndim != 2 or data.shape[1] != _ROW or data.shape[0] == 0 or not np.issubdtype(data.dtype, np.number):
         raise SceneError(f"{path}: expected an [N, {_ROW}] array of numbers, got shape {list(data.shape)} "
                          f"of {data.dtype}")

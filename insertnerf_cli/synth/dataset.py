@@ -22,6 +22,7 @@ from typing import Iterable, Iterator, Literal
 
 from ..atomic import write_error, write_json
 from ..errors import UserError
+from ..lock import lock_output, releases_output_locks
 from ..outdir import OutputRecord, check_output, foreign_entries, move_into, record_tree
 from .capture import CaptureOptions
 from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, render_scene
@@ -114,6 +115,7 @@ def generate_dataset(out_dir: str | os.PathLike, options: SynthOptions, workers:
     return build_dataset(out_dir, options, workers).manifest
 
 
+@releases_output_locks
 def build_dataset(out_dir: str | os.PathLike, options: SynthOptions, workers: int = 1, overwrite: bool = False,
                   progress: bool = True) -> DatasetRun:
     """Render every scene of ``options`` under ``out_dir`` that is not there yet.
@@ -141,6 +143,7 @@ def build_dataset(out_dir: str | os.PathLike, options: SynthOptions, workers: in
 def _prepare(out: Path, manifest: Manifest, overwrite: bool) -> None:
     """Create ``out`` or check it holds this very dataset; remove leftovers of interrupted runs."""
     check_output(out, [], what="the output folder")
+    lock_output(out, _OWNER)
     out.mkdir(parents=True, exist_ok=True)
     path = out / MANIFEST
     ours = manifest.to_json()

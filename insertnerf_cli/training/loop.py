@@ -15,6 +15,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from ..errors import UserError
+from ..lock import releases_output_locks
 from ..model import LossTerms
 from . import distributed
 from .config import TrainConfig, with_device_defaults
@@ -130,6 +131,7 @@ class _StopRequest:
         self.say("Ctrl-C: finishing this step and saving a checkpoint (press Ctrl-C again to stop without saving).")
 
 
+@releases_output_locks
 def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig, device: torch.device,
           resume: bool = False, overwrite: bool = False) -> TrainResult:
     """Train the generator on every scene in ``dataset_dir``; write metrics and checkpoints to ``run_dir``.

@@ -15,6 +15,7 @@ from ..atomic import WriteError
 from ..checkpoint import Checkpoint, TrainState, load_weights, read_checkpoint, save_checkpoint
 from ..config import config_to_json
 from ..errors import UserError
+from ..lock import lock_output
 from ..model import InsertNeRF, LossTerms, SourceViews
 from ..rays import Rays
 from . import distributed
@@ -76,6 +77,8 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
                  resume: bool, overwrite: bool, say: Say) -> Session:
     """Check the run folder, read the scenes, build (or restore) model, optimizer and generators."""
     check_run_dir(files, dataset_dir, resume, overwrite, config.init)  # every rank checks before any rank writes
+    if ctx.is_main:  # only rank 0 writes; torchrun stops the other ranks when it is refused
+        lock_output(files.root, "train")
     distributed.barrier(ctx)
     checkpoint = read_checkpoint(files.last) if resume else None
     if checkpoint is not None:
