@@ -12,7 +12,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
@@ -21,16 +20,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from insertnerf_cli.checkpoint import bundled_checkpoint, load_model  # noqa: E402
 from insertnerf_cli.metrics import psnr  # noqa: E402
 from insertnerf_cli.scenes import load_scene, normalize_scene  # noqa: E402
+from insertnerf_cli.training.depth import read_scene_depth  # noqa: E402
 from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 from insertnerf_cli.views import held_out_views  # noqa: E402
 
 MIN_OPACITY = 0.5  # as render's depth maps
-
-
-def true_depth(scene, index: int, size: tuple[int, int]) -> np.ndarray:
-    """The exact depth [H, W] in the normalised scene's units (0 = no surface), nearest-pixel resized."""
-    stored = cv2.imread(str(scene.depth_paths[index]), cv2.IMREAD_UNCHANGED).astype(np.float64)
-    return cv2.resize(stored * scene.depth_scale, (size[1], size[0]), interpolation=cv2.INTER_NEAREST_EXACT)
 
 
 def score(scene_dir: Path, model, views: int, resolution: int) -> tuple[list[float], list[float], list[float]]:
@@ -45,7 +39,7 @@ def score(scene_dir: Path, model, views: int, resolution: int) -> tuple[list[flo
     for index in held:
         camera = scene.cameras.subset([index]).rescale(*size)
         out, _ = renderer.render(camera, float(scene.near[index]), float(scene.far[index]), exclude=held)
-        truth = true_depth(scene, index, size)
+        truth = read_scene_depth(scene, index, *size).astype(np.float64)
         depth, opacity = out.depth.double().numpy(), out.opacity.double().numpy()
         both = (truth > 0) & (opacity >= MIN_OPACITY)
         errors.extend((np.abs(depth[both] - truth[both]) / truth[both]).tolist())

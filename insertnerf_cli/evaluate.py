@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .atomic import write_json
+from .atomic import write_bytes, write_json
 from .config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from .errors import UserError
-from .eval_outputs import REPORT_HTML, check_eval_outputs, prepare_side_by_sides, side_by_side, side_by_side_name
+from .eval_outputs import (OWNER, REPORT_HTML, check_eval_outputs, prepare_side_by_sides, side_by_side,
+                           side_by_side_name)
 from .lock import lock_output, releases_output_locks
 from .metrics import SSIM_WINDOW, psnr, ssim
 from .outputs import write_png
@@ -129,7 +130,7 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     out_dir = Path(config.out_dir) if config.out_dir is not None else None
     check_eval_outputs(Path(scene_dir), config.checkpoint, config.json_path, out_dir, config.overwrite)
     if out_dir is not None:
-        lock_output(out_dir, "eval")  # one writer per folder (lock.py)
+        lock_output(out_dir, OWNER)  # one writer per folder (lock.py)
     scene, _ = normalize_scene(load_scene(Path(scene_dir)))
     held = held_out_views(scene, config.max_views)
     size = scene.size_for(config.resolution)
@@ -159,8 +160,6 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     run = EvalRun(config, weights, reports, time.perf_counter() - started)
     if out_dir is not None:
         from .report.eval_page import eval_page
-
-        from .atomic import write_bytes
 
         write_bytes(out_dir / REPORT_HTML, eval_page(run).encode("utf-8"))
     if config.json_path is not None:

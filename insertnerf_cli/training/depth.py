@@ -11,23 +11,32 @@ import torch
 from torch import Tensor
 
 from ..errors import SceneError
+from ..scenes import Scene
 from .data import TrainScene
 
 
-def decode_depth(scene: TrainScene, index: int) -> Tensor:
-    """Depth [H, W] float32 of view ``index`` at the training size, in the normalised scene's units.
+def read_scene_depth(scene: Scene, index: int, height: int, width: int) -> np.ndarray | None:
+    """The depth file of view ``index`` as float32 [height, width] in the scene's units (0 = no surface), or None
+    when the scene has no depth for it.
 
     Nearest-pixel resizing: averaging depths across a silhouette would invent surfaces between object and
-    backdrop. A scene without depth files gives all NaN.
+    backdrop.
     """
-    height, width = scene.cameras.height, scene.cameras.width
-    paths = scene.scene.depth_paths
+    paths = scene.depth_paths
     if paths is None or paths[index] is None:
-        return torch.full((height, width), float("nan"))
+        return None
     stored = cv2.imread(str(paths[index]), cv2.IMREAD_UNCHANGED)
     if stored is None or stored.ndim != 2:
         raise SceneError(f"{paths[index]}: not a single-channel depth image")
-    depth = stored.astype(np.float32) * np.float32(scene.scene.depth_scale)
+    depth = stored.astype(np.float32) * np.float32(scene.depth_scale)
     if depth.shape != (height, width):
         depth = cv2.resize(depth, (width, height), interpolation=cv2.INTER_NEAREST_EXACT)
-    return torch.from_numpy(depth)
+    return depth
+
+
+def decode_depth(scene: TrainScene, index: int) -> Tensor:
+    """Depth [H, W] float32 of view ``index`` at the training size, in the normalised scene's units; all NaN
+    for a scene without depth files."""
+    height, width = scene.cameras.height, scene.cameras.width
+    depth = read_scene_depth(scene.scene, index, height, width)
+    return torch.full((height, width), float("nan")) if depth is None else torch.from_numpy(depth)
