@@ -37,6 +37,10 @@ class ModelConfig:
     aggregate_hidden: int = 8  # hidden width of the dynamic-weight MLP (per view, so kept small)
     static_sharpness_init: float = 0.2  # IBRNet's s in exp(|s|(cos - 1))
     visibility_cue: bool = False  # each view's deviation from the others feeds its dynamic weight (issue 27)
+    # K > 0: the reference colour weighs each view by its dynamic weight times the unstructured-lumigraph prior
+    # over the K views whose rays through the sample are closest in angle to the query ray (aggregate.py,
+    # issue 27); 0: by the dynamic weight alone.
+    colour_prior_views: int = 0
     # --- HyperNet modules and the NeRF MLP
     nerf_width: int = 32
     nerf_layers: int = 4  # geometry layers, each preceded by a HyperNet module
@@ -77,7 +81,7 @@ class ModelConfig:
                   "nerf_width", "nerf_layers", "appearance_width", "z_branches", "film_hidden", "filter_nodes",
                   "samples_coarse", "samples_fine", "num_views")
         _at_least(self, 0, "pe_freqs_pos", "pe_freqs_dir", "loss_backbone_weight", "loss_dynamic_weight",
-                  "loss_depth_weight", "loss_distortion_weight")
+                  "loss_depth_weight", "loss_distortion_weight", "colour_prior_views")
         if self.coord_scale <= 0 or not all(0.0 <= c <= 1.0 for c in self.background):
             raise ValueError(f"coord_scale must be positive and background colours in [0, 1], got "
                              f"coord_scale={self.coord_scale}, background={self.background}")

@@ -16,9 +16,15 @@ so a plain max over views is the max over valid views, with no masking pass over
 """
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+
+# Radians: below a thousandth of a pixel's angle at any usable resolution; keeps 1 / angle finite.
+_MIN_ANGLE = 1e-6
 
 
 def channel_linear(layer: nn.Linear, x: Tensor, add: Tensor | None = None) -> Tensor:
@@ -51,6 +57,37 @@ def weighted_moments(values: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
     mean = weighted.sum(dim=0, keepdim=True)  # [1, C, P]
     second = (weighted * values).sum(dim=0, keepdim=True)
     return mean, (second - mean * mean).clamp(min=0.0)
+
+
+def angular_prior(ray_diff: Tensor, mask: Tensor, views: int) -> Tensor:
+    """Unstructured-lumigraph view weights [V, 1, P] (Buehler et al. 2001) from ray_diff [V, 4, P], mask [V, 1, P].
+
+    A view's weight is (1 - a / a_K) / a, a the angle between its ray through the sample and the query ray, a_K
+    the ``views``-th smallest angle among the views that see the sample: the nearest views in angle dominate and
+    the K-th and farther get none, whatever the capture's spread (forward-facing grids differ by a degree, orbits
+    by tens). Where fewer than K views see the sample, a_K is 1.5 x their largest angle, so each keeps a share.
+    Learned weights are near-uniform on real photos (docs/model-card.md, issue 27): without this, every added
+    view pulls a pixel's colour toward what the farther views see. Cameras only, so no gradient.
+    """
+    with torch.no_grad():
+        # 2 asin(|u - q| / 2) is the angle between unit vectors u and q, accurate where acos(cos) is not (a ~ 0).
+        angle = 2.0 * torch.asin((ray_diff[:, :3].norm(dim=1, keepdim=True) / 2.0).clamp(max=1.0))  # [V, 1, P]
+        unseen = torch.full_like(angle, 2.0 * math.pi)  # larger than any angle: never among the K nearest
+        angle = torch.where(mask > 0, angle, unseen)
+        count = min(views, angle.shape[0])
+        kth = angle.topk(count, dim=0, largest=False).values[-1:]  # [1, 1, P]
+        widest = torch.where(mask > 0, angle, torch.zeros_like(angle)).amax(dim=0, keepdim=True)
+        fewer = mask.sum(dim=0, keepdim=True) < views
+        kth = torch.where(fewer, 1.5 * widest, kth).clamp(min=_MIN_ANGLE)
+        # A view on the query ray itself (angle 0) takes (almost) all the weight, as it should.
+        prior = (1.0 - angle / kth).clamp(min=0.0) / (angle + _MIN_ANGLE) * mask
+        return prior / prior.sum(dim=0, keepdim=True).clamp(min=1e-12)
+
+
+def reweigh(weights: Tensor, prior: Tensor) -> Tensor:
+    """weights [V, 1, P] times prior [V, 1, P], renormalised over views (all-zero slices stay zero)."""
+    product = weights * prior
+    return product / product.sum(dim=0, keepdim=True).clamp(min=1e-12)
 
 
 class ScaleAggregator(nn.Module):

@@ -8,7 +8,7 @@ from ..config import ModelConfig
 from ..rays import Rays
 from ..compositing import Composite, composite, composite_weights
 from ..sampling import RaySamples, importance_samples, stratified_samples
-from .aggregate import ScaleAggregator
+from .aggregate import ScaleAggregator, angular_prior, reweigh
 from .encoder import UNetEncoder, pad_to_stride
 from .losses import compute_losses
 from .nerf import NeRFHead
@@ -137,8 +137,11 @@ class InsertNeRF(nn.Module):
         seen = project_samples(encoded, points, rays.directions)
         inputs = [*seen.features[:-1], torch.cat([seen.features[-1], seen.colours], dim=1)]  # [V, C_l, P]
         descriptors, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in zip(self.aggregators, inputs)))
+        dynamic = torch.stack(dynamics).mean(dim=0)  # [V, 1, P]
+        if self.config.colour_prior_views:
+            dynamic = reweigh(dynamic, angular_prior(seen.ray_diff, seen.mask, self.config.colour_prior_views))
         return SampleFeatures(points=points, conds=tuple(d.reshape(rays_n, samples_n, -1) for d in descriptors),
-                              dynamic=torch.stack(dynamics).mean(dim=0), colours=seen.colours)
+                              dynamic=dynamic, colours=seen.colours)
 
     def shade(self, head: NeRFHead, seen: SampleFeatures, rays: Rays, samples: RaySamples,
               reference: Tensor, backdrop: Tensor) -> Composite:

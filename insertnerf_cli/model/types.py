@@ -94,7 +94,8 @@ class SampleFeatures:
     Attributes:
         points: [R, S, 3] world positions.
         conds: per scale, coarse to fine, [R, S, D_l] aggregated descriptors (the HyperNet conditions).
-        dynamic: [V, 1, R * S] dynamic view weights, averaged over the scales.
+        dynamic: [V, 1, R * S] view weights of the reference colour: the dynamic weights averaged over the scales
+            (times the angular prior with ``colour_prior_views``), summing to 1 where a view sees the sample.
         colours: [V, 3, R * S] reference colours at the samples' projections (zero where a view cannot see).
     """
 
