@@ -5,17 +5,25 @@ count, render's shortcuts, 256 px) on each capture, and a table is printed: one 
 one column per count, plus the 10-minus-3 and 16-minus-10 differences.
 
     OMP_NUM_THREADS=1 python3 bench/views_ab.py runs/a/checkpoints/last.pt runs/b/checkpoints/last.pt \
-        --captures beer,room,flower,mold_gold_cape --views 3,10,16 [--max-views 4]
+        --captures beer,room,flower,mold_gold_cape --views 3,10,16 [--max-views 4] [--colour-prior 0,6]
+
+--colour-prior K,...: score each checkpoint once per K with its config's ``colour_prior_views`` set to K (the same
+weights; the angular colour prior needs no training), through a copy in a temporary folder.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
+import tempfile
 from pathlib import Path
+
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.checkpoint import bundled_checkpoint  # noqa: E402
+from insertnerf_cli.checkpoint import (build_model, bundled_checkpoint, read_checkpoint,  # noqa: E402
+                                      save_checkpoint)
 from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
@@ -28,9 +36,14 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=REALDATA, help="folder of the captures")
     parser.add_argument("--views", default="3,10,16")
     parser.add_argument("--max-views", type=int, default=None, help="held-out views per capture (default: all)")
+    parser.add_argument("--colour-prior", default=None, help="comma-separated colour_prior_views values to try")
     args = parser.parse_args()
     counts = tuple(int(v) for v in args.views.split(","))
     checkpoints = args.checkpoints or [bundled_checkpoint()]
+    if args.colour_prior is not None:
+        scratch = tempfile.TemporaryDirectory(prefix="views_ab_")
+        priors = [int(k) for k in args.colour_prior.split(",")]
+        checkpoints = [with_colour_prior(c, k, Path(scratch.name)) for c in checkpoints for k in priors]
     print(f"checkpoint | capture | " + " | ".join(f"{k} views" for k in counts) + " | 10-3 | 16-10", flush=True)
     for checkpoint in checkpoints:
         for capture in args.captures.split(","):
@@ -40,6 +53,14 @@ def main() -> None:
             cells = [f"{r.psnr:.2f} / {r.ssim:.3f}" for r in run.reports]
             gains = [f"{psnr[b] - psnr[a]:+.2f}" if a in psnr and b in psnr else "-" for a, b in ((3, 10), (10, 16))]
             print(f"{checkpoint} | {capture} | " + " | ".join(cells + gains), flush=True)
+
+
+def with_colour_prior(checkpoint: Path, views: int, folder: Path) -> Path:
+    """A copy of ``checkpoint`` in ``folder`` whose config has colour_prior_views = ``views``, named after both."""
+    source = read_checkpoint(checkpoint)
+    config = dataclasses.replace(source.model_config, colour_prior_views=views)
+    model = build_model(dataclasses.replace(source, model_config=config), torch.device("cpu"))
+    return save_checkpoint(folder / f"{checkpoint.stem}-prior{views}.pt", model, config)
 
 
 if __name__ == "__main__":
