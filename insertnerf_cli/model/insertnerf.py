@@ -103,7 +103,7 @@ class InsertNeRF(nn.Module):
         cfg = self.config
         rays = rays.to(device=self.background.device, dtype=self.background.dtype)
         samples = stratified_samples(rays, cfg.samples_coarse, jitter=False, in_disparity=cfg.sample_in_disparity)
-        coarse = self.observe(encoded, rays, samples)
+        coarse = self.observe(encoded, rays, samples, colour=False)
         _, density = self.coarse_head.geometry(coarse.points, coarse.conds)
         return samples, composite_weights(density, samples.edges, rays.directions.norm(dim=-1))
 
@@ -130,15 +130,19 @@ class InsertNeRF(nn.Module):
         main = self.shade(head, seen, rays, samples, reference, backdrop)
         return main, composite(main.weights.detach(), reference, samples.t, backdrop).rgb
 
-    def observe(self, encoded: EncodedViews, rays: Rays, samples: RaySamples) -> SampleFeatures:
-        """Project the samples into every reference view and aggregate what the views see, per scale."""
+    def observe(self, encoded: EncodedViews, rays: Rays, samples: RaySamples, colour: bool = True) -> SampleFeatures:
+        """Project the samples into every reference view and aggregate what the views see, per scale.
+
+        ``colour=False``: the caller uses no reference colour (the inference coarse pass), so the colour prior,
+        which changes nothing else, is skipped.
+        """
         points = samples.points(rays)  # [R, S, 3]
         rays_n, samples_n = points.shape[:2]
         seen = project_samples(encoded, points, rays.directions)
         inputs = [*seen.features[:-1], torch.cat([seen.features[-1], seen.colours], dim=1)]  # [V, C_l, P]
         descriptors, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in zip(self.aggregators, inputs)))
         dynamic = torch.stack(dynamics).mean(dim=0)  # [V, 1, P]
-        if self.config.colour_prior_views:
+        if colour and self.config.colour_prior_views:
             dynamic = reweigh(dynamic, angular_prior(seen.ray_diff, seen.mask, self.config.colour_prior_views))
         return SampleFeatures(points=points, conds=tuple(d.reshape(rays_n, samples_n, -1) for d in descriptors),
                               dynamic=dynamic, colours=seen.colours)
