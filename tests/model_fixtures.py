@@ -58,3 +58,11 @@ def tiny_model_and_views(size: int = 8, config: ModelConfig = TINY) -> tuple[Ins
     with torch.no_grad():
         encoded = model.encode(sphere_views(3, 16))
     return model, encoded, orbit_cameras(1, size, phase=0.4)
+
+
+def flat_views(colours: list[tuple[float, float, float]], size: int = 16) -> SourceViews:
+    """Views on a circle (view 0 at phase 0), image i one uniform colour colours[i]: what every view sees of any
+    point, at infinity too, is its colour."""
+    cams = orbit_cameras(len(colours), size)
+    images = torch.tensor(colours, dtype=torch.float32)[:, None, None, :].expand(-1, size, size, -1).contiguous()
+    return SourceViews(images, cams)

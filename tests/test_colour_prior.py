@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import pytest
 import torch
@@ -12,7 +11,7 @@ from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.model.aggregate import angular_prior, reweigh
 from insertnerf_cli.rays import rays_from_pixels
 from insertnerf_cli.sampling import RaySamples
-from model_fixtures import TINY, orbit_cameras
+from model_fixtures import TINY, flat_views, orbit_cameras
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -70,16 +69,10 @@ def reference_colour_at_origin(views: SourceViews, prior_views: int) -> torch.Te
     return seen.reference_colour()[0, 0]
 
 
-def uniform_views(colours: list[tuple[float, float, float]], count: int) -> SourceViews:
-    """``count`` views on a circle (view 0 at phase 0), view i one uniform colour colours[i]."""
-    images = torch.tensor(colours, dtype=torch.float32)[:, None, None, :].expand(-1, 16, 16, -1).contiguous()
-    return SourceViews(images, orbit_cameras(count, 16))
-
-
 def test_more_views_do_not_pull_the_colour_away_from_the_nearest_view():
     red, blue = (0.9, 0.1, 0.1), (0.1, 0.1, 0.9)
     for count in (6, 12):
-        views = uniform_views([red] + [blue] * (count - 1), count)
+        views = flat_views([red] + [blue] * (count - 1))
         # K = 2: only the nearest view in angle (view 0, 0.2 rad from the target) colours the sample.
         assert torch.allclose(reference_colour_at_origin(views, 2), torch.tensor(red), atol=1e-5)
         # The learned weights alone blend in the farther (blue) views.
@@ -91,4 +84,4 @@ def test_the_prior_setting_round_trips_through_the_checkpoint_config():
     assert config_from_json(ModelConfig, config_to_json(config)).colour_prior_views == 6
     with pytest.raises(ValueError):
         dataclasses.replace(ModelConfig(), colour_prior_views=-1)
-    assert math.isclose(ModelConfig().colour_prior_views, 0)  # older checkpoints keep their behaviour
+    assert ModelConfig().colour_prior_views == 0  # older checkpoints keep their behaviour

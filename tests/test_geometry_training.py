@@ -15,7 +15,7 @@ from insertnerf_cli.training import train
 from insertnerf_cli.training.batches import DrawGenerators, StepStream, check_batch_scenes
 from insertnerf_cli.training.data import find_scenes
 from insertnerf_cli.training.device_data import load_training_set
-from model_fixtures import TINY, orbit_cameras
+from model_fixtures import TINY, flat_views, orbit_cameras
 from test_train import small
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -54,13 +54,6 @@ def test_distortion_prefers_one_compact_peak_to_mass_spread_along_the_ray():
     spread = distortion_loss(torch.full((1, 8), 1.0 / 8), EDGES, near, far, in_disparity=False)
     assert 0.0 < peak < spread
     assert distortion_loss(torch.zeros(1, 8), EDGES, near, far, in_disparity=True) == 0.0
-
-
-def flat_views(colours: list[tuple[float, float, float]], size: int = 16) -> SourceViews:
-    """Views on a circle, each image one uniform colour: what every view sees at infinity is its colour."""
-    cams = orbit_cameras(len(colours), size)
-    images = torch.tensor(colours, dtype=torch.float32)[:, None, None, :].expand(-1, size, size, -1).contiguous()
-    return SourceViews(images, cams)
 
 
 def empty_model(infinity: bool) -> InsertNeRF:
