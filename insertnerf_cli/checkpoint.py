@@ -18,7 +18,7 @@ from torch import Tensor, nn
 from . import __version__
 from .atomic import atomic_path
 from .config import ModelConfig, config_from_json, config_to_json
-from .errors import UserError
+from .errors import UserError, first_line
 from .outdir import BUNDLED_WEIGHTS_DIR
 
 CHECKPOINT_FORMAT = "insertnerf-checkpoint"
@@ -105,7 +105,7 @@ def read_checkpoint(path: str | Path) -> Checkpoint:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises several types for truncated, non-zip or unsafe files
-        raise UserError(f"checkpoint {path} cannot be read ({_one_line(err)}); it is corrupt or not an "
+        raise UserError(f"checkpoint {path} cannot be read ({first_line(err)}); it is corrupt or not an "
                         "insertnerf checkpoint: pass another one, or retrain.") from None
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise UserError(f"{path} is not an insertnerf checkpoint (no '{CHECKPOINT_FORMAT}' marker).")
@@ -120,7 +120,7 @@ def read_checkpoint(path: str | Path) -> Checkpoint:
         train_state = None if train is None else TrainState(**train)
     except Exception as err:
         raise UserError(f"checkpoint {path} was written by an incompatible insertnerf version "
-                        f"({_one_line(err)}); retrain it with this version.") from None
+                        f"({first_line(err)}); retrain it with this version.") from None
     return Checkpoint(path, version, config, state, train_state)
 
 
@@ -132,7 +132,7 @@ def build_model(checkpoint: Checkpoint, device: torch.device) -> nn.Module:
         model = InsertNeRF(checkpoint.model_config)
     except Exception as err:
         raise UserError(f"checkpoint {checkpoint.path} describes a model this version cannot build "
-                        f"({_one_line(err)}); retrain it with this version.") from None
+                        f"({first_line(err)}); retrain it with this version.") from None
     load_weights(model, checkpoint)
     return model.to(device)
 
@@ -178,13 +178,6 @@ def checkpoint_sha256(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
-
-
-def _one_line(err: BaseException) -> str:
-    """The first line of an exception message, shortened, for a one-line user error."""
-    lines = str(err).strip().splitlines()
-    first = lines[0] if lines else type(err).__name__
-    return first[:160]
 
 
 def export_weights(source: str | Path, destination: str | Path) -> Path:

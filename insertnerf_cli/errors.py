@@ -43,3 +43,11 @@ def os_error_message(err: OSError) -> str:
                                                         "check the path and re-run"))
     paths = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None)
     return f"{happened}: {paths}; {advice}." if paths else f"{happened} ({err.strerror or err}); {advice}."
+
+
+def first_line(err: BaseException, limit: int = 160) -> str:
+    """An exception's message cut to its first non-blank line and ``limit`` characters ("..." marks a cut), its
+    type's name when it has none: for quoting a library's error inside a one-line message (pycolmap's failed
+    checks carry COLMAP's source position and a long expression, zipfile quotes whole damaged names)."""
+    lines = [line.strip() for line in str(err).splitlines() if line.strip()] or [type(err).__name__]
+    return lines[0] if len(lines[0]) <= limit else lines[0][:limit] + "..."

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SceneError, os_error_message
+from ..errors import SceneError, first_line, os_error_message
 
 _NPY_MAGIC = b"\x93NUMPY"
 _MAX_HEADER = 65536
@@ -84,8 +84,7 @@ def load_npz(path: Path) -> dict[str, np.ndarray]:
         raise
     except (zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, EOFError, ValueError, NotImplementedError,
             UnicodeDecodeError, KeyError, OverflowError, struct.error, OSError) as err:
-        detail = (str(err).splitlines() or ["no detail"])[0]
-        detail = detail if len(detail) <= 120 else detail[:120] + "..."  # zipfile quotes whole damaged names
+        detail = first_line(err, 120)  # zipfile quotes whole damaged names
         raise SceneError(f"cannot read {path}: damaged .npz archive ({type(err).__name__}: {detail!r}); "
                          "re-create the file") from None
     return arrays

@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Cameras, w2c_to_c2w
-from ..errors import SceneError
+from ..errors import SceneError, first_line
 from .base import Scene
 from .binfiles import check_colmap_binary
 from .common import ReadViews, assemble, safe_path
@@ -72,13 +72,6 @@ def _observed_depths(rec, image_ids: list[int], cameras: Cameras) -> list[Tensor
     return [xyz_t[rows] @ z_rows[n, :3] + z_rows[n, 3] for n, rows in enumerate(index)]
 
 
-def _first_line(err: Exception, limit: int = 160) -> str:
-    """pycolmap's message, one line: a failed check carries COLMAP's source position and a long expression."""
-    lines = [line.strip() for line in str(err).splitlines() if line.strip()] or [type(err).__name__]
-    line = lines[0]
-    return line if len(line) <= limit else line[:limit] + "..."
-
-
 def read_colmap(root: Path, images: str, background: tuple[float, float, float]) -> Scene:
     import pycolmap
 
@@ -91,7 +84,7 @@ def read_colmap(root: Path, images: str, background: tuple[float, float, float])
         raise SceneError(f"{model_dir}: an image name is not valid UTF-8 ({err.object[err.start:err.end + 8]!r}); "
                          "rename the image to a UTF-8 name and re-export the model") from None
     except Exception as err:  # noqa: BLE001 - pycolmap raises plain RuntimeError/ValueError on bad files
-        raise SceneError(f"cannot read the COLMAP model in {model_dir}: {_first_line(err)}; re-export the model "
+        raise SceneError(f"cannot read the COLMAP model in {model_dir}: {first_line(err)}; re-export the model "
                          "(or run `insertnerf poses` on the images)") from None
     # One pass over the images: each rec.images[i] look-up costs a walk over that image's keypoints.
     registered = sorted(((names[i], i, im) for i, im in rec.images.items() if im.has_pose), key=lambda x: x[0])
