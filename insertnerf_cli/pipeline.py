@@ -19,10 +19,9 @@ from .atomic import write_bytes
 from .config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from .lock import lock_output, releases_output_locks
 from .outdir import check_output
-from .outputs import OWNER as RENDER_OWNER
-from .outputs import (CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, claim_render_outputs, depth_scale_for,
-                      depth_to_float, depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths, prepare_out_dir,
-                      write_cameras_json, write_frame, write_state, write_video)
+from .outputs import (OWNER as RENDER_OWNER, CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, claim_render_outputs,
+                      depth_scale_for, depth_to_float, depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths,
+                      prepare_out_dir, write_cameras_json, write_frame, write_state, write_video)
 from .paths import CameraPath, default_path_kind, make_path
 from .report.html import duration
 from .view_renderer import ViewRenderer, checkpoint_path, load_model

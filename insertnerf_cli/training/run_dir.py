@@ -22,7 +22,7 @@ from ..errors import UserError
 from ..outdir import OutputRecord, check_not_inside_inputs, check_output
 from .config import TrainConfig
 
-_OWNER = "train"  # the name of its list in an output record (outdir.py)
+OWNER = "train"  # the name of its list in an output record (outdir.py)
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,7 @@ class RunFiles:
 
     def has_run(self) -> bool:
         """Whether a run wrote anything here (a record, or files of versions before records)."""
-        return OutputRecord(self.root, _OWNER).exists or any(p.exists() for p in self.owned())
+        return OutputRecord(self.root, OWNER).exists or any(p.exists() for p in self.owned())
 
 
 def check_run_dir(files: RunFiles, dataset_dir: Path, resume: bool, overwrite: bool,
@@ -89,12 +89,12 @@ def check_run_dir(files: RunFiles, dataset_dir: Path, resume: bool, overwrite: b
 
 def clear_run(files: RunFiles) -> None:
     """Delete the files of a previous run in RUN_DIR (only those insertnerf wrote), for --overwrite."""
-    OutputRecord(files.root, _OWNER).remove(legacy=_LEGACY_OUTPUTS)
+    OutputRecord(files.root, OWNER).remove(legacy=_LEGACY_OUTPUTS)
 
 
 def claim_run(files: RunFiles) -> None:
     """Record every file of the run before writing any."""
-    OutputRecord(files.root, _OWNER).claim(*(p.relative_to(files.root).as_posix() for p in files.owned()))
+    OutputRecord(files.root, OWNER).claim(*(p.relative_to(files.root).as_posix() for p in files.owned()))
 
 
 # What runs of versions without an output record wrote (the only names --overwrite removes there).

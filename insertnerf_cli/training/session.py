@@ -26,7 +26,7 @@ from .data import (ImageCache, TrainScene, ViewDraw, check_view_counts, find_sce
 from .device_data import TrainingSet, load_training_set
 from .distributed import DistContext
 from .rng import capture_rng, restore_rng
-from .run_dir import (RunFiles, check_run_dir, claim_run, clear_run, read_splits, truncate_metrics,
+from .run_dir import (OWNER, RunFiles, check_run_dir, claim_run, clear_run, read_splits, truncate_metrics,
                       write_run_config, write_splits)
 from .warm_start import warm_start
 
@@ -78,7 +78,7 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
     """Check the run folder, read the scenes, build (or restore) model, optimizer and generators."""
     check_run_dir(files, dataset_dir, resume, overwrite, config.init)  # every rank checks before any rank writes
     if ctx.is_main:  # only rank 0 writes; torchrun stops the other ranks when it is refused
-        lock_output(files.root, "train")
+        lock_output(files.root, OWNER)
     distributed.barrier(ctx)
     checkpoint = read_checkpoint(files.last) if resume else None
     if checkpoint is not None:
