@@ -8,7 +8,7 @@ frame back to the first equals every other step, so a video of the path loops wi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import torch
@@ -16,6 +16,7 @@ from torch import Tensor
 
 from .cameras import Cameras, check_shape
 from .errors import UserError
+from .views import ViewMethod, nearest_views
 
 PathKind = Literal["orbit", "spiral", "input"]
 PATH_KINDS: tuple[str, ...] = ("orbit", "spiral", "input")
@@ -189,6 +190,21 @@ def make_path(kind: str, cameras: Cameras, near: Tensor, far: Tensor, frames: in
     if kind == "input":
         return input_path(cameras, near, far, size, frames)
     raise UserError(f"unknown camera path {kind!r}; choose one of {', '.join(PATH_KINDS)}")
+
+
+def with_reference_bounds(path: CameraPath, cameras: Cameras, near: Tensor, far: Tensor, views: int,
+                          method: ViewMethod) -> CameraPath:
+    """``path`` with each frame's near and far the medians of the bounds [N] of the ``views`` input cameras it is
+    rendered from (the nearest by ``method``, as view_renderer picks them); input-path frames keep their own.
+
+    One pair for a whole orbit or spiral (the inputs' smallest near, largest far) spreads a frame's samples over
+    depths its reference views do not see: on the dev captures eval scores 0.2-0.9 dB below each view's own bounds
+    with it, and 0.0-0.5 dB below with its references' medians (docs/benchmarks.md, issue 27).
+    """
+    if path.source_index is not None:
+        return path
+    refs = torch.tensor([nearest_views(c2w, cameras.c2w, views, method) for c2w in path.cameras.c2w])  # [F, k]
+    return replace(path, near=near[refs].median(dim=-1).values, far=far[refs].median(dim=-1).values)
 
 
 def default_path_kind(layout: str) -> str:

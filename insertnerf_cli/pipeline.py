@@ -22,9 +22,10 @@ from .outdir import check_output
 from .outputs import (OWNER as RENDER_OWNER, CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, claim_render_outputs,
                       depth_scale_for, depth_to_float, depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths,
                       prepare_out_dir, write_cameras_json, write_frame, write_state, write_video)
-from .paths import CameraPath, default_path_kind, make_path
+from .paths import CameraPath, default_path_kind, make_path, with_reference_bounds
 from .report.html import duration
 from .view_renderer import ViewRenderer, checkpoint_path, load_model
+from .views import view_rule
 
 DEFAULT_FRAMES = 30
 DEFAULT_FPS = 15.0
@@ -127,6 +128,7 @@ def _plan(scene, config: RenderConfig):
     frames = config.frames if config.frames is not None or kind == "input" else DEFAULT_FRAMES
     path = make_path(kind, scene.cameras, scene.near, scene.far, frames if frames is not None else len(scene),
                      scene.size_for(config.resolution))
+    path = with_reference_bounds(path, scene.cameras, scene.near, scene.far, config.views, view_rule(scene.layout))
     return scene, similarity, path
 
 

@@ -50,7 +50,9 @@ class ViewRenderer:
         from .render import EXACT, Shortcuts
 
         self.shortcuts = EXACT if exact else Shortcuts()
-        self.method = "dist" if scene.layout == "forward" else "vector"
+        from .views import view_rule
+
+        self.method = view_rule(scene.layout)
         self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
 
     def references(self, target_c2w: torch.Tensor, exclude: list[int], views: int | None = None) -> list[int]:

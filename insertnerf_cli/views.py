@@ -24,6 +24,12 @@ ViewMethod = Literal["vector", "dist", "matrix"]
 VIEW_METHODS: tuple[str, ...] = ("vector", "dist", "matrix")
 
 
+def view_rule(layout: str) -> ViewMethod:
+    """The rule that picks reference views at test time: camera distance for forward-facing captures, angle about
+    the centre for object-centric ones (IBRNet's choices for LLFF and for 360-degree scenes)."""
+    return "dist" if layout == "forward" else "vector"
+
+
 def view_distances(target_c2w: Tensor, ref_c2w: Tensor, method: ViewMethod = "vector",
                    center: Tensor | Sequence[float] | None = None) -> Tensor:
     """How far each reference camera is from the target, by one of the IBRNet rules.

@@ -7,7 +7,7 @@ import torch
 from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.paths import (default_path_kind, focus_point, input_path, look_at, make_path, mean_up,
-                                  orbit_path, spiral_path)
+                                  orbit_path, spiral_path, with_reference_bounds)
 
 UP = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
 
@@ -134,3 +134,27 @@ def test_look_at_axes_are_opencv():
     torch.testing.assert_close(c2w[0, :3, 2], torch.tensor([1.0, 0, 0], dtype=torch.float64))
     torch.testing.assert_close(c2w[0, :3, 1], torch.tensor([0, 0, -1.0], dtype=torch.float64))
     torch.testing.assert_close(c2w[0, :3, 0], torch.tensor([0, -1.0, 0], dtype=torch.float64))
+
+
+def test_reference_bounds_give_each_orbit_frame_the_bounds_of_the_views_it_renders_from():
+    # Half the ring sees a near wall (bounds 1-5), the other half a far one (2-20): an orbit frame next to a
+    # camera of either half takes that half's bounds, not one pair (1-20) for all frames.
+    cams = _ring(12, focus=(0.0, 0.0, 0.0))
+    half = torch.arange(12) < 6
+    near = torch.where(half, 1.0, 2.0).double()
+    far = torch.where(half, 5.0, 20.0).double()
+    path = orbit_path(cams, near, far, frames=12, size=(60, 80))  # frame i sits at camera i's azimuth
+    assert float(path.near.min()) == 1.0 and float(path.far.max()) == 20.0 and path.far.unique().numel() == 1
+    bounded = with_reference_bounds(path, cams, near, far, views=3, method="vector")
+    torch.testing.assert_close(bounded.near[[2, 3]], torch.ones(2, dtype=torch.float64))
+    torch.testing.assert_close(bounded.far[[2, 3]], torch.full((2,), 5.0, dtype=torch.float64))
+    torch.testing.assert_close(bounded.near[[8, 9]], torch.full((2,), 2.0, dtype=torch.float64))
+    torch.testing.assert_close(bounded.far[[8, 9]], torch.full((2,), 20.0, dtype=torch.float64))
+    assert bounded.cameras is path.cameras
+
+
+def test_reference_bounds_leave_input_frames_their_own():
+    cams = _ring(6)
+    near, far = torch.arange(1.0, 7.0).double(), torch.arange(10.0, 16.0).double()
+    path = input_path(cams, near, far, size=(30, 40))
+    assert with_reference_bounds(path, cams, near, far, views=2, method="vector") is path

@@ -1,0 +1,99 @@
+"""Does eval's score on the dev captures depend on the depth bounds or on the rule that picks reference views?
+
+Issue 27, round 4 (docs/model-card.md): `insertnerf eval`'s library call, with the normalised scene's per-view
+near/far bounds scaled (or replaced by one pair for all views, as render's orbit and spiral paths use), or the
+view-choice rule swapped (views.py: vector, dist, matrix), at inference only. Prints one line per capture.
+
+    OMP_NUM_THREADS=1 python3 bench/bounds_probe.py --far-scale 1.5 --captures beer,mold_gold_cape --max-views 3
+    OMP_NUM_THREADS=1 python3 bench/bounds_probe.py --method matrix --views 3,10,16
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from insertnerf_cli import scenes, view_renderer  # noqa: E402
+from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
+from insertnerf_cli.views import VIEW_METHODS  # noqa: E402
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--captures", default="beer,mold_gold_cape,room,flower")
+    parser.add_argument("--root", type=Path, default=REALDATA, help="folder of the captures")
+    parser.add_argument("--views", default="10", help="reference-view counts, comma-separated")
+    parser.add_argument("--max-views", type=int, default=None, help="held-out views per capture (default: all)")
+    parser.add_argument("--checkpoint", type=Path, default=None, help="default: the bundled fast generator")
+    parser.add_argument("--near-scale", type=float, default=1.0, help="multiply every view's near bound")
+    parser.add_argument("--far-scale", type=float, default=1.0, help="multiply every view's far bound")
+    parser.add_argument("--global-bounds", action="store_true", help="one pair for all views: min near, max far")
+    parser.add_argument("--reference-bounds", choices=("span", "median"), default=None,
+                        help="each view's bounds from its references: span = min near / max far, or their medians")
+    parser.add_argument("--method", choices=VIEW_METHODS, default=None, help="view-choice rule for every scene")
+    args = parser.parse_args()
+    patch_bounds(args.near_scale, args.far_scale, args.global_bounds)
+    if args.method is not None:
+        patch_view_rule(args.method)
+    if args.reference_bounds is not None:
+        patch_reference_bounds(args.reference_bounds)
+    counts = tuple(int(v) for v in args.views.split(","))
+    for capture in args.captures.split(","):
+        run = run_eval(args.root / capture, EvalConfig(views=counts, checkpoint=args.checkpoint,
+                                                         max_views=args.max_views))
+        cells = " | ".join(f"{r.reference_views} views {r.psnr:.2f} / {r.ssim:.3f}" for r in run.reports)
+        print(f"near x{args.near_scale} far x{args.far_scale} global {args.global_bounds} rule {args.method} "
+              f"from references {args.reference_bounds} | "
+              f"{capture} | {cells}", flush=True)
+
+
+def patch_bounds(near_scale: float, far_scale: float, global_bounds: bool) -> None:
+    """Make normalize_scene (which run_eval imports when it runs) return the scene with changed bounds."""
+    normalize = scenes.normalize_scene
+
+    def changed(scene):
+        normed, similarity = normalize(scene)
+        near, far = normed.near * near_scale, normed.far * far_scale  # [N] each
+        if global_bounds:
+            near, far = torch.full_like(near, float(near.min())), torch.full_like(far, float(far.max()))
+        return dataclasses.replace(normed, near=near, far=far), similarity
+
+    scenes.normalize_scene = changed
+
+
+def patch_view_rule(method: str) -> None:
+    """Make every ViewRenderer pick its references by ``method`` (it picks by the scene's layout otherwise)."""
+    init = view_renderer.ViewRenderer.__init__
+
+    def with_rule(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        self.method = method
+
+    view_renderer.ViewRenderer.__init__ = with_rule
+
+
+def patch_reference_bounds(rule: str) -> None:
+    """Make ViewRenderer.render take a view's bounds from the references it renders from, not its own."""
+    render = view_renderer.ViewRenderer.render
+
+    def from_references(self, camera, near, far, exclude, views=None):
+        refs = torch.tensor(self.references(camera.c2w[0], exclude, views))
+        ref_near, ref_far = self.scene.near[refs], self.scene.far[refs]  # [k] each
+        if rule == "span":
+            near, far = float(ref_near.min()), float(ref_far.max())
+        else:
+            near, far = float(ref_near.median()), float(ref_far.median())
+        return render(self, camera, near, far, exclude, views)
+
+    view_renderer.ViewRenderer.render = from_references
+
+
+if __name__ == "__main__":
+    main()
