@@ -1,11 +1,14 @@
-"""Does eval's score on the dev captures depend on the depth bounds or on the rule that picks reference views?
+"""eval on the dev captures with one inference-time change: the depth bounds, the view-choice rule, sharper weights.
 
-Issue 27, round 4 (docs/model-card.md): `insertnerf eval`'s library call, with the normalised scene's per-view
-near/far bounds scaled (or replaced by one pair for all views, as render's orbit and spiral paths use), or the
-view-choice rule swapped (views.py: vector, dist, matrix), at inference only. Prints one line per capture.
+Issue 27, round 4 (docs/model-card.md, docs/benchmarks.md): `insertnerf eval`'s library call, with the normalised
+scene's per-view near/far bounds scaled, replaced by one pair for all views (as render's orbit and spiral frames
+had them) or by those of each view's references; or the view-choice rule swapped (views.py: vector, dist,
+matrix); or the fine pass's compositing weights raised to a power (renormalised to the same opacity). Prints one
+line per capture.
 
-    OMP_NUM_THREADS=1 python3 bench/bounds_probe.py --far-scale 1.5 --captures beer,mold_gold_cape --max-views 3
-    OMP_NUM_THREADS=1 python3 bench/bounds_probe.py --method matrix --views 3,10,16
+    OMP_NUM_THREADS=1 python3 bench/eval_probe.py --far-scale 1.5 --captures beer,mold_gold_cape --max-views 3
+    OMP_NUM_THREADS=1 python3 bench/eval_probe.py --method matrix --views 3,10,16
+    OMP_NUM_THREADS=1 python3 bench/eval_probe.py --weight-power 2 --max-views 3
 """
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli import scenes, view_renderer  # noqa: E402
+from insertnerf_cli.model import insertnerf  # noqa: E402
 from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
 from insertnerf_cli.views import VIEW_METHODS  # noqa: E402
 
@@ -38,19 +42,23 @@ def main() -> None:
     parser.add_argument("--reference-bounds", choices=("span", "median"), default=None,
                         help="each view's bounds from its references: span = min near / max far, or their medians")
     parser.add_argument("--method", choices=VIEW_METHODS, default=None, help="view-choice rule for every scene")
+    parser.add_argument("--weight-power", type=float, default=None,
+                        help="raise the fine pass's weights to this power (0 = the heaviest sample alone)")
     args = parser.parse_args()
     patch_bounds(args.near_scale, args.far_scale, args.global_bounds)
     if args.method is not None:
         patch_view_rule(args.method)
     if args.reference_bounds is not None:
         patch_reference_bounds(args.reference_bounds)
+    if args.weight_power is not None:
+        patch_weight_power(args.weight_power)
     counts = tuple(int(v) for v in args.views.split(","))
     for capture in args.captures.split(","):
         run = run_eval(args.root / capture, EvalConfig(views=counts, checkpoint=args.checkpoint,
                                                          max_views=args.max_views))
         cells = " | ".join(f"{r.reference_views} views {r.psnr:.2f} / {r.ssim:.3f}" for r in run.reports)
         print(f"near x{args.near_scale} far x{args.far_scale} global {args.global_bounds} rule {args.method} "
-              f"from references {args.reference_bounds} | "
+              f"from references {args.reference_bounds} weight power {args.weight_power} | "
               f"{capture} | {cells}", flush=True)
 
 
@@ -93,6 +101,22 @@ def patch_reference_bounds(rule: str) -> None:
         return render(self, camera, near, far, exclude, views)
 
     view_renderer.ViewRenderer.render = from_references
+
+
+def patch_weight_power(power: float) -> None:
+    """Make the model's composite (the fine pass at inference) use weights w^power, or the heaviest sample alone
+    for power 0, rescaled to the ray's opacity."""
+    composite = insertnerf.composite
+
+    def sharper(weights, colour, t, background):
+        opacity = weights.sum(dim=-1, keepdim=True)  # [R, 1]
+        if power == 0:
+            w = torch.zeros_like(weights).scatter_(-1, weights.argmax(dim=-1, keepdim=True), 1.0)
+        else:
+            w = weights.clamp(min=0.0) ** power  # [R, S]
+        return composite(w / w.sum(dim=-1, keepdim=True).clamp(min=1e-12) * opacity, colour, t, background)
+
+    insertnerf.composite = sharper
 
 
 if __name__ == "__main__":
