@@ -3,12 +3,13 @@
 Issue 27, round 4 (docs/model-card.md, docs/benchmarks.md): `insertnerf eval`'s library call, with the normalised
 scene's per-view near/far bounds scaled, replaced by one pair for all views (as render's orbit and spiral frames
 had them) or by those of each view's references; or the view-choice rule swapped (views.py: vector, dist,
-matrix); or the fine pass's compositing weights raised to a power (renormalised to the same opacity). Prints one
+matrix), or, for synth scenes, replaced by LLFF-like ones from the depth files; or the fine pass's compositing weights raised to a power (renormalised to the same opacity). Prints one
 line per capture.
 
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --far-scale 1.5 --captures beer,mold_gold_cape --max-views 3
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --method matrix --views 3,10,16
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --weight-power 2 --max-views 3
+    OMP_NUM_THREADS=1 python3 bench/eval_probe.py --depth-bounds --root scratch/syn_obj --captures scene_00000
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
+import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -24,9 +26,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from insertnerf_cli import scenes, view_renderer  # noqa: E402
 from insertnerf_cli.model import insertnerf  # noqa: E402
 from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
+from insertnerf_cli.scenes.geometry import POINT_PERCENTILES  # noqa: E402
+from insertnerf_cli.training.depth import read_scene_depth  # noqa: E402
 from insertnerf_cli.views import VIEW_METHODS  # noqa: E402
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+DEPTH_SIDE = 64  # long side at which the depth files are read for --depth-bounds (percentiles need no more)
 
 
 def main() -> None:
@@ -39,13 +44,15 @@ def main() -> None:
     parser.add_argument("--near-scale", type=float, default=1.0, help="multiply every view's near bound")
     parser.add_argument("--far-scale", type=float, default=1.0, help="multiply every view's far bound")
     parser.add_argument("--global-bounds", action="store_true", help="one pair for all views: min near, max far")
+    parser.add_argument("--depth-bounds", action="store_true",
+                        help="LLFF-like bounds per view from synth's depth files (0.1 and 99.9 percentiles)")
     parser.add_argument("--reference-bounds", choices=("span", "median"), default=None,
                         help="each view's bounds from its references: span = min near / max far, or their medians")
     parser.add_argument("--method", choices=VIEW_METHODS, default=None, help="view-choice rule for every scene")
     parser.add_argument("--weight-power", type=float, default=None,
                         help="raise the fine pass's weights to this power (0 = the heaviest sample alone)")
     args = parser.parse_args()
-    patch_bounds(args.near_scale, args.far_scale, args.global_bounds)
+    patch_bounds(args.near_scale, args.far_scale, args.global_bounds, args.depth_bounds)
     if args.method is not None:
         patch_view_rule(args.method)
     if args.reference_bounds is not None:
@@ -57,23 +64,39 @@ def main() -> None:
         run = run_eval(args.root / capture, EvalConfig(views=counts, checkpoint=args.checkpoint,
                                                          max_views=args.max_views))
         cells = " | ".join(f"{r.reference_views} views {r.psnr:.2f} / {r.ssim:.3f}" for r in run.reports)
-        print(f"near x{args.near_scale} far x{args.far_scale} global {args.global_bounds} rule {args.method} "
+        print(f"near x{args.near_scale} far x{args.far_scale} global {args.global_bounds} depth {args.depth_bounds} "
+              f"rule {args.method} "
               f"from references {args.reference_bounds} weight power {args.weight_power} | "
               f"{capture} | {cells}", flush=True)
 
 
-def patch_bounds(near_scale: float, far_scale: float, global_bounds: bool) -> None:
+def patch_bounds(near_scale: float, far_scale: float, global_bounds: bool, depth_bounds: bool) -> None:
     """Make normalize_scene (which run_eval imports when it runs) return the scene with changed bounds."""
     normalize = scenes.normalize_scene
 
     def changed(scene):
         normed, similarity = normalize(scene)
+        if depth_bounds:
+            normed = with_depth_bounds(normed)
         near, far = normed.near * near_scale, normed.far * far_scale  # [N] each
         if global_bounds:
             near, far = torch.full_like(near, float(near.min())), torch.full_like(far, float(far.max()))
         return dataclasses.replace(normed, near=near, far=far), similarity
 
     scenes.normalize_scene = changed
+
+
+def with_depth_bounds(scene):
+    """The scene with each view's near/far the POINT_PERCENTILES of its depth file's surface depths (a view
+    without depth, or without any surface, keeps its bounds)."""
+    near, far = scene.near.clone(), scene.far.clone()  # [N] each
+    height, width = scene.size_for(DEPTH_SIDE)
+    for i in range(len(scene)):
+        depth = read_scene_depth(scene, i, height, width)
+        surface = depth[np.isfinite(depth) & (depth > 0)] if depth is not None else np.empty(0)
+        if surface.size:
+            near[i], far[i] = (float(v) for v in np.percentile(surface, POINT_PERCENTILES))
+    return dataclasses.replace(scene, near=near, far=far)
 
 
 def patch_view_rule(method: str) -> None:

@@ -1,0 +1,50 @@
+"""A training set of synth scenes twice each: as they are, and with LLFF-like bounds per view (issue 27, round 6).
+
+LLFF's bounds are the 0.1 and 99.9 percentiles of the depths of the points a photo sees, so a real capture's far
+bound can cut off its background; synth writes one loose pair per scene. The copy (`tight_NAME`: links to the
+scene's files, its transforms_*.json rewritten with per-frame near/far from the exact depth) lets training see both.
+
+    python3 bench/tight_bounds_data.py data/trainmix data/traintight [--layout object]
+"""
+import argparse
+import json
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+PERCENTILES = (0.1, 99.9)  # geometry.POINT_PERCENTILES, LLFF's
+
+parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+parser.add_argument("source", type=Path, help="folder of scene folders (or links to them)")
+parser.add_argument("out", type=Path, help="new folder: a link to each scene plus its tight_ copy")
+parser.add_argument("--layout", default=None, help="make tight copies of this layout's scenes only (object, forward)")
+args = parser.parse_args()
+src, dst = args.source, args.out
+dst.mkdir(exist_ok=True)
+for link in sorted(src.iterdir()):
+    scene = link.resolve()
+    if not (dst / link.name).exists():
+        os.symlink(scene, dst / link.name)
+    if args.layout and json.loads((scene / "transforms_train.json").read_text()).get("layout") != args.layout:
+        continue
+    out = dst / f"tight_{link.name}"
+    out.mkdir(exist_ok=True)
+    for entry in scene.iterdir():
+        if entry.name.startswith("transforms_") or (out / entry.name).exists():
+            continue
+        os.symlink(entry, out / entry.name)
+    for tf in scene.glob("transforms_*.json"):
+        meta = json.loads(tf.read_text())
+        scale = float(meta.get("depth_unit_scale_factor", 0.001))
+        for frame in meta["frames"]:
+            d = cv2.imread(str(scene / frame["depth_file_path"]), cv2.IMREAD_UNCHANGED).astype(np.float64) * scale
+            d = d[d > 0]
+            if d.size:
+                lo, hi = np.percentile(d, PERCENTILES)
+                frame["near"], frame["far"] = float(lo), float(max(hi, lo * 1.01))
+            else:
+                frame["near"], frame["far"] = meta["near"], meta["far"]
+        (out / tf.name).write_text(json.dumps(meta))
+print(len(list(dst.iterdir())))
