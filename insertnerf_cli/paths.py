@@ -121,7 +121,7 @@ def orbit_path(cameras: Cameras, near: Tensor, far: Tensor, frames: int, size: t
     The cameras keep the inputs' mean distance to the focus and their mean elevation angle (so a capture from
     all over a sphere gives a circle as far out as its cameras, not one shrunk towards the middle), start at the
     first input camera's azimuth, and stop one step short of 360 degrees so the loop closes. near/far are the
-    inputs' overall bounds.
+    inputs' overall bounds (render narrows them per frame with :func:`with_reference_bounds`).
     """
     _check_frames(frames)
     focus, up = focus_point(cameras), mean_up(cameras)
