@@ -2,9 +2,9 @@
 
 Issue 27, round 4 (docs/model-card.md, docs/benchmarks.md): `insertnerf eval`'s library call, with the normalised
 scene's per-view near/far bounds scaled, replaced by one pair for all views (as render's orbit and spiral frames
-had them) or by those of each view's references; or the view-choice rule swapped (views.py: vector, dist,
-matrix), or, for synth scenes, replaced by LLFF-like ones from the depth files; or the fine pass's compositing weights raised to a power (renormalised to the same opacity). Prints one
-line per capture.
+had them), by those of each view's references, or (synth scenes) by LLFF-like ones from the depth files; or the
+view-choice rule swapped (views.py: vector, dist, matrix); or the fine pass's compositing weights raised to a power
+(renormalised to the same opacity). Prints one line per capture.
 
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --far-scale 1.5 --captures beer,mold_gold_cape --max-views 3
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --method matrix --views 3,10,16
@@ -18,7 +18,6 @@ import dataclasses
 import sys
 from pathlib import Path
 
-import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -26,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from insertnerf_cli import scenes, view_renderer  # noqa: E402
 from insertnerf_cli.model import insertnerf  # noqa: E402
 from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
-from insertnerf_cli.scenes.geometry import POINT_PERCENTILES  # noqa: E402
+from insertnerf_cli.scenes.geometry import bounds_from_depths  # noqa: E402
 from insertnerf_cli.training.depth import read_scene_depth  # noqa: E402
 from insertnerf_cli.views import VIEW_METHODS  # noqa: E402
 
@@ -89,13 +88,10 @@ def patch_bounds(near_scale: float, far_scale: float, global_bounds: bool, depth
 def with_depth_bounds(scene):
     """The scene with each view's near/far the POINT_PERCENTILES of its depth file's surface depths (a view
     without depth, or without any surface, keeps its bounds)."""
-    near, far = scene.near.clone(), scene.far.clone()  # [N] each
     height, width = scene.size_for(DEPTH_SIDE)
-    for i in range(len(scene)):
-        depth = read_scene_depth(scene, i, height, width)
-        surface = depth[np.isfinite(depth) & (depth > 0)] if depth is not None else np.empty(0)
-        if surface.size:
-            near[i], far[i] = (float(v) for v in np.percentile(surface, POINT_PERCENTILES))
+    depths = [read_scene_depth(scene, i, height, width) for i in range(len(scene))]  # [H, W] each, or None
+    near, far = bounds_from_depths([torch.empty(0) if d is None else torch.from_numpy(d) for d in depths],
+                                   (scene.near, scene.far))
     return dataclasses.replace(scene, near=near, far=far)
 
 

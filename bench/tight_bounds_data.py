@@ -9,12 +9,16 @@ scene's files, its transforms_*.json rewritten with per-frame near/far from the 
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
-PERCENTILES = (0.1, 99.9)  # geometry.POINT_PERCENTILES, LLFF's
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from insertnerf_cli.scenes.geometry import bounds_from_depths  # noqa: E402  (LLFF's percentiles)
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("source", type=Path, help="folder of scene folders (or links to them)")
@@ -40,11 +44,8 @@ for link in sorted(src.iterdir()):
         scale = float(meta.get("depth_unit_scale_factor", 0.001))
         for frame in meta["frames"]:
             d = cv2.imread(str(scene / frame["depth_file_path"]), cv2.IMREAD_UNCHANGED).astype(np.float64) * scale
-            d = d[d > 0]
-            if d.size:
-                lo, hi = np.percentile(d, PERCENTILES)
-                frame["near"], frame["far"] = float(lo), float(max(hi, lo * 1.01))
-            else:
-                frame["near"], frame["far"] = meta["near"], meta["far"]
+            loose = torch.tensor([[meta["near"]], [meta["far"]]], dtype=torch.float64)  # [2, 1]
+            near, far = (float(b[0]) for b in bounds_from_depths([torch.from_numpy(d)], (loose[0], loose[1])))
+            frame["near"], frame["far"] = near, max(far, near * 1.01)  # a flat view must keep a depth range
         (out / tf.name).write_text(json.dumps(meta))
 print(len(list(dst.iterdir())))
