@@ -50,7 +50,11 @@ def main() -> None:
     parser.add_argument("--method", choices=VIEW_METHODS, default=None, help="view-choice rule for every scene")
     parser.add_argument("--weight-power", type=float, default=None,
                         help="raise the fine pass's weights to this power (0 = the heaviest sample alone)")
+    parser.add_argument("--in-disparity", action="store_true",
+                        help="place the coarse samples uniformly in 1/t instead of t (the model trained with t)")
     args = parser.parse_args()
+    if args.in_disparity:
+        patch_in_disparity()
     patch_bounds(args.near_scale, args.far_scale, args.global_bounds, args.depth_bounds)
     if args.method is not None:
         patch_view_rule(args.method)
@@ -65,7 +69,8 @@ def main() -> None:
         cells = " | ".join(f"{r.reference_views} views {r.psnr:.2f} / {r.ssim:.3f}" for r in run.reports)
         print(f"near x{args.near_scale} far x{args.far_scale} global {args.global_bounds} depth {args.depth_bounds} "
               f"rule {args.method} "
-              f"from references {args.reference_bounds} weight power {args.weight_power} | "
+              f"from references {args.reference_bounds} weight power {args.weight_power} "
+              f"in disparity {args.in_disparity} | "
               f"{capture} | {cells}", flush=True)
 
 
@@ -136,6 +141,16 @@ def patch_weight_power(power: float) -> None:
         return composite(w / w.sum(dim=-1, keepdim=True).clamp(min=1e-12) * opacity, colour, t, background)
 
     insertnerf.composite = sharper
+
+
+def patch_in_disparity() -> None:
+    """Make the model's coarse samples uniform in disparity whatever its config says."""
+    stratified = insertnerf.stratified_samples
+
+    def in_disparity(rays, count, jitter, in_disparity=False):
+        return stratified(rays, count, jitter=jitter, in_disparity=True)
+
+    insertnerf.stratified_samples = in_disparity
 
 
 if __name__ == "__main__":
