@@ -52,7 +52,11 @@ def main() -> None:
                         help="raise the fine pass's weights to this power (0 = the heaviest sample alone)")
     parser.add_argument("--in-disparity", action="store_true",
                         help="place the coarse samples uniformly in 1/t instead of t (the model trained with t)")
+    parser.add_argument("--sample-views", type=int, default=None,
+                        help="per sample, aggregate only the K views nearest in angle to the query ray")
     args = parser.parse_args()
+    if args.sample_views is not None:
+        patch_sample_views(args.sample_views)
     if args.in_disparity:
         patch_in_disparity()
     patch_bounds(args.near_scale, args.far_scale, args.global_bounds, args.depth_bounds)
@@ -70,7 +74,7 @@ def main() -> None:
         print(f"near x{args.near_scale} far x{args.far_scale} global {args.global_bounds} depth {args.depth_bounds} "
               f"rule {args.method} "
               f"from references {args.reference_bounds} weight power {args.weight_power} "
-              f"in disparity {args.in_disparity} | "
+              f"in disparity {args.in_disparity} sample views {args.sample_views} | "
               f"{capture} | {cells}", flush=True)
 
 
@@ -151,6 +155,16 @@ def patch_in_disparity() -> None:
         return stratified(rays, count, jitter=jitter, in_disparity=True)
 
     insertnerf.stratified_samples = in_disparity
+
+
+def patch_sample_views(k: int) -> None:
+    """Make every sample see only its k views nearest in angle, whatever the checkpoint's ``sample_views``."""
+    project = insertnerf.project_samples
+
+    def nearest(encoded, points, directions):
+        return project(encoded, points, directions).nearest_in_angle(k)
+
+    insertnerf.project_samples = nearest
 
 
 if __name__ == "__main__":

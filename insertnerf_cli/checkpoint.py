@@ -8,7 +8,7 @@ in the checkpoint, never from command-line flags.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -180,12 +180,20 @@ def checkpoint_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def export_weights(source: str | Path, destination: str | Path) -> Path:
+# Config fields that change how trained weights render, not what they are: set at export without retraining.
+INFERENCE_FIELDS = ("colour_prior_views", "sample_views")
+
+
+def export_weights(source: str | Path, destination: str | Path, **inference: int) -> Path:
     """Write the weights and config of a training checkpoint without its optimizer and RNG state.
 
     This is how the bundled ``weights/insertnerf.pt`` is made from a run's checkpoint: a third of the size,
-    and nothing in it but what ``load_model`` needs.
+    and nothing in it but what ``load_model`` needs. ``inference`` overrides INFERENCE_FIELDS of the config
+    (e.g. sample_views=12); any other field would no longer match the weights, so it is refused.
     """
+    unknown = sorted(set(inference) - set(INFERENCE_FIELDS))
+    if unknown:
+        raise ValueError(f"only {', '.join(INFERENCE_FIELDS)} can change at export, not {', '.join(unknown)}")
     checkpoint = read_checkpoint(source)
     model = build_model(checkpoint, torch.device("cpu"))
-    return save_checkpoint(destination, model, checkpoint.model_config)
+    return save_checkpoint(destination, model, replace(checkpoint.model_config, **inference))

@@ -41,6 +41,10 @@ class ModelConfig:
     # over the K views whose rays through the sample are closest in angle to the query ray (aggregate.py,
     # issue 27); 0: by the dynamic weight alone.
     colour_prior_views: int = 0
+    # K > 0: each sample aggregates at most the K reference views whose rays through it are closest in angle to
+    # the query ray (projection.nearest_in_angle); 0: every view. A render asked for more views than training
+    # drew then still feeds the aggregator statistics over a training-like count, chosen per sample (issue 27).
+    sample_views: int = 0
     # --- HyperNet modules and the NeRF MLP
     nerf_width: int = 32
     nerf_layers: int = 4  # geometry layers, each preceded by a HyperNet module
@@ -81,7 +85,8 @@ class ModelConfig:
                   "nerf_width", "nerf_layers", "appearance_width", "z_branches", "film_hidden", "filter_nodes",
                   "samples_coarse", "samples_fine", "num_views")
         _at_least(self, 0, "pe_freqs_pos", "pe_freqs_dir", "loss_backbone_weight", "loss_dynamic_weight",
-                  "loss_depth_weight", "loss_distortion_weight", "colour_prior_views")
+                  "loss_depth_weight", "loss_distortion_weight", "colour_prior_views",
+                  "sample_views")
         if self.coord_scale <= 0 or not all(0.0 <= c <= 1.0 for c in self.background):
             raise ValueError(f"coord_scale must be positive and background colours in [0, 1], got "
                              f"coord_scale={self.coord_scale}, background={self.background}")

@@ -6,7 +6,6 @@ import dataclasses
 import pytest
 import torch
 
-from insertnerf_cli.config import ModelConfig, config_from_json, config_to_json
 from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.model.aggregate import angular_prior, reweigh
 from insertnerf_cli.rays import rays_from_pixels
@@ -78,10 +77,3 @@ def test_more_views_do_not_pull_the_colour_away_from_the_nearest_view():
         # The learned weights alone blend in the farther (blue) views.
         assert reference_colour_at_origin(views, 0)[2] > 0.15
 
-
-def test_the_prior_setting_round_trips_through_the_checkpoint_config():
-    config = dataclasses.replace(ModelConfig(), colour_prior_views=6)
-    assert config_from_json(ModelConfig, config_to_json(config)).colour_prior_views == 6
-    with pytest.raises(ValueError):
-        dataclasses.replace(ModelConfig(), colour_prior_views=-1)
-    assert ModelConfig().colour_prior_views == 0  # older checkpoints keep their behaviour

@@ -22,6 +22,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from .projection import ray_angle
+
 
 # Radians: below a thousandth of a pixel's angle at any usable resolution; keeps 1 / angle finite.
 _MIN_ANGLE = 1e-6
@@ -70,8 +72,7 @@ def angular_prior(ray_diff: Tensor, mask: Tensor, views: int) -> Tensor:
     view pulls a pixel's colour toward what the farther views see. Cameras only, so no gradient.
     """
     with torch.no_grad():
-        # 2 asin(|u - q| / 2) is the angle between unit vectors u and q, accurate where acos(cos) is not (a ~ 0).
-        angle = 2.0 * torch.asin((ray_diff[:, :3].norm(dim=1, keepdim=True) / 2.0).clamp(max=1.0))  # [V, 1, P]
+        angle = ray_angle(ray_diff)  # [V, 1, P]
         unseen = torch.full_like(angle, 2.0 * math.pi)  # larger than any angle: never among the K nearest
         angle = torch.where(mask > 0, angle, unseen)
         count = min(views, angle.shape[0])

@@ -139,6 +139,8 @@ class InsertNeRF(nn.Module):
         points = samples.points(rays)  # [R, S, 3]
         rays_n, samples_n = points.shape[:2]
         seen = project_samples(encoded, points, rays.directions)
+        if self.config.sample_views:
+            seen = seen.nearest_in_angle(self.config.sample_views)
         inputs = [*seen.features[:-1], torch.cat([seen.features[-1], seen.colours], dim=1)]  # [V, C_l, P]
         descriptors, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in zip(self.aggregators, inputs)))
         dynamic = torch.stack(dynamics).mean(dim=0)  # [V, 1, P]

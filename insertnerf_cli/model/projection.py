@@ -6,6 +6,7 @@ per-view linear layers are one batched matrix product ``W [O, C] @ x [V, C, P]``
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -40,6 +41,29 @@ class Projected:
     def cos(self) -> Tensor:
         """[V, 1, P] cosine between the query ray and the view's ray through the sample."""
         return self.ray_diff[:, 3:]
+
+    def nearest_in_angle(self, views: int) -> Projected:
+        """Per sample, only the ``views`` views whose rays are closest in angle to the query ray: [K, C, P]
+        tensors (K = views), valid views first. With V <= K views this is ``self`` unchanged."""
+        if self.mask.shape[0] <= views:
+            return self
+        unseen = torch.full_like(self.mask, 2.0 * math.pi)  # larger than any angle: chosen last
+        angle = torch.where(self.mask > 0, ray_angle(self.ray_diff), unseen)  # [V, 1, P]
+        index = angle.topk(views, dim=0, largest=False).indices  # [K, 1, P]
+
+        def pick(x: Tensor) -> Tensor:  # [V, C, P] -> [K, C, P]
+            return torch.gather(x, 0, index.expand(views, x.shape[1], x.shape[2]))
+
+        return Projected(tuple(pick(f) for f in self.features), pick(self.colours), pick(self.mask),
+                         pick(self.ray_diff))
+
+
+def ray_angle(ray_diff: Tensor) -> Tensor:
+    """[V, 1, P] angle between each view's ray through the sample and the query ray, from ray_diff [V, 4, P].
+
+    2 asin(|u - q| / 2) is the angle between unit vectors u and q, accurate where acos(cos) is not (angle ~ 0).
+    """
+    return 2.0 * torch.asin((ray_diff[:, :3].norm(dim=1, keepdim=True) / 2.0).clamp(max=1.0))
 
 
 def projection_matrices(cameras: Cameras) -> Tensor:
