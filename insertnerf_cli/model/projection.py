@@ -6,7 +6,6 @@ per-view linear layers are one batched matrix product ``W [O, C] @ x [V, C, P]``
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -47,9 +46,10 @@ class Projected:
         tensors (K = views), valid views first. With V <= K views this is ``self`` unchanged."""
         if self.mask.shape[0] <= views:
             return self
-        unseen = torch.full_like(self.mask, 2.0 * math.pi)  # larger than any angle: chosen last
-        angle = torch.where(self.mask > 0, ray_angle(self.ray_diff), unseen)  # [V, 1, P]
-        index = angle.topk(views, dim=0, largest=False).indices  # [K, 1, P]
+        # The largest cosines are the smallest angles, without ray_angle's asin (a quarter of this call's time).
+        cos = torch.where(self.mask > 0, self.cos, torch.full_like(self.mask, -2.0))  # [V, 1, P]; unseen: last
+        # topk along a contiguous last axis: along the view axis of [V, 1, P] it measured 10x slower on CPU.
+        index = cos[:, 0].T.contiguous().topk(views, dim=1).indices.T[:, None]  # [K, 1, P]
 
         def pick(x: Tensor) -> Tensor:  # [V, C, P] -> [K, C, P]
             return torch.gather(x, 0, index.expand(views, x.shape[1], x.shape[2]))
