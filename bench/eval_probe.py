@@ -1,15 +1,17 @@
-"""eval on the dev captures with one inference-time change: the depth bounds, the view-choice rule, sharper weights.
+"""eval on the dev captures with one inference-time change: depth bounds, view choice, weights, sample placement.
 
-Issue 27, round 4 (docs/model-card.md, docs/benchmarks.md): `insertnerf eval`'s library call, with the normalised
-scene's per-view near/far bounds scaled, replaced by one pair for all views (as render's orbit and spiral frames
-had them), by those of each view's references, or (synth scenes) by LLFF-like ones from the depth files; or the
-view-choice rule swapped (views.py: vector, dist, matrix); or the fine pass's compositing weights raised to a power
-(renormalised to the same opacity). Prints one line per capture.
+Issue 27, rounds 4, 7 and 8 (docs/model-card.md, docs/benchmarks.md): `insertnerf eval`'s library call, with the
+normalised scene's per-view near/far bounds scaled, replaced by one pair for all views (as render's orbit and
+spiral frames had them), by those of each view's references, or (synth scenes) by LLFF-like ones from the depth
+files; or the view-choice rule swapped (views.py: vector, dist, matrix); or the fine pass's compositing weights
+raised to a power (renormalised to the same opacity); or the coarse samples even in disparity; or each sample
+matched across only its K views nearest in angle. Prints one line per capture.
 
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --far-scale 1.5 --captures beer,mold_gold_cape --max-views 3
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --method matrix --views 3,10,16
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --weight-power 2 --max-views 3
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --depth-bounds --root scratch/syn_obj --captures scene_00000
+    OMP_NUM_THREADS=1 python3 bench/eval_probe.py --sample-views 12 --max-views 3 --views 10,16
 """
 from __future__ import annotations
 

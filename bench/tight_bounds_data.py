@@ -21,7 +21,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.scenes.geometry import bounds_from_depths  # noqa: E402  (LLFF's percentiles)
+from insertnerf_cli.scenes.geometry import POINT_PERCENTILES, bounds_from_depths  # noqa: E402  (LLFF's)
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("source", type=Path, help="folder of scene folders (or links to them)")
@@ -31,6 +31,7 @@ parser.add_argument("--far-percentile", type=float, default=None,
                     help="far bound at this percentile of each view's depth (default: LLFF's, 99.9)")
 parser.add_argument("--prefix", default="tight_", help="name prefix of the copies")
 args = parser.parse_args()
+percentiles = (POINT_PERCENTILES[0], POINT_PERCENTILES[1] if args.far_percentile is None else args.far_percentile)
 src, dst = args.source, args.out
 dst.mkdir(exist_ok=True)
 for link in sorted(src.iterdir()):
@@ -51,9 +52,8 @@ for link in sorted(src.iterdir()):
         for frame in meta["frames"]:
             d = cv2.imread(str(scene / frame["depth_file_path"]), cv2.IMREAD_UNCHANGED).astype(np.float64) * scale
             loose = torch.tensor([[meta["near"]], [meta["far"]]], dtype=torch.float64)  # [2, 1]
-            near, far = (float(b[0]) for b in bounds_from_depths([torch.from_numpy(d)], (loose[0], loose[1])))
-            if args.far_percentile is not None and (d > 0).any():
-                far = float(np.percentile(d[d > 0], args.far_percentile))
+            near, far = (float(b[0]) for b in bounds_from_depths([torch.from_numpy(d)], (loose[0], loose[1]),
+                                                                 percentiles))
             frame["near"], frame["far"] = near, max(far, near * 1.01)  # a flat view must keep a depth range
         (out / tf.name).write_text(json.dumps(meta))
 print(len(list(dst.iterdir())))

@@ -77,13 +77,15 @@ def bounds_from_geometry(cameras: Cameras, layout: Layout) -> tuple[Tensor, Tens
     return depth * lo, depth * hi
 
 
-def bounds_from_depths(depths: list[Tensor], fallback: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor]:
-    """Near/far [N] as the POINT_PERCENTILES of each view's point depths [P_i] (positive ones only).
+def bounds_from_depths(depths: list[Tensor], fallback: tuple[Tensor, Tensor],
+                       percentiles: tuple[float, float] = POINT_PERCENTILES) -> tuple[Tensor, Tensor]:
+    """Near/far [N] as the ``percentiles`` (LLFF's POINT_PERCENTILES unless given) of each view's point depths
+    [P_i] (positive ones only).
 
     A view that sees no point keeps its ``fallback`` bounds.
     """
     near, far = fallback[0].clone(), fallback[1].clone()
-    q = torch.tensor([p / 100.0 for p in POINT_PERCENTILES], dtype=torch.float64)
+    q = torch.tensor([p / 100.0 for p in percentiles], dtype=torch.float64)
     for i, d in enumerate(depths):
         d = d.to(torch.float64)
         d = d[d > 0]
