@@ -5,6 +5,7 @@
     python3 bench/train_throughput.py --dataset data/ --steps 40 --threads 2
     python3 bench/train_throughput.py --batch-scenes 2       # 2 scenes per step, 256 rays each
     python3 bench/train_throughput.py --precision bf16 --compile
+    python3 bench/train_throughput.py --model-config examples/fast-prior-model.json --device cuda --rays 16384
     torchrun --nproc_per_node 2 bench/train_throughput.py --threads 1 --compile   # DDP: one process per core
 
 It runs the real training loop (scene draws on the device, the decoded training set, nearest-view pool, encode,
@@ -38,6 +39,7 @@ from insertnerf_cli.model import InsertNeRF  # noqa: E402
 from insertnerf_cli.paths import look_at  # noqa: E402
 from insertnerf_cli.scenes import write_blender_transforms  # noqa: E402
 from insertnerf_cli.training import TrainConfig, train  # noqa: E402
+from insertnerf_cli.training.config import read_model_config  # noqa: E402
 
 NEVER = 10 ** 9  # no validation or periodic checkpoint inside the measured steps
 
@@ -87,10 +89,12 @@ def main() -> None:
     parser.add_argument("--precision", choices=["fp32", "bf16"], default="fp32")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--compile", action="store_true", help="torch.compile the step (compiles in the warm-up)")
+    parser.add_argument("--model-config", type=Path, help="JSON of ModelConfig fields, as `train --model-config` "
+                        "(e.g. examples/fast-prior-model.json); --conditioning is then ignored")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    model = ModelConfig(conditioning=args.conditioning)
+    model = read_model_config(args.model_config) if args.model_config else ModelConfig(conditioning=args.conditioning)
     config = TrainConfig(model=model, steps=args.warmup + args.steps, rays=args.rays, resolution=args.resolution,
                          val_every=NEVER, ckpt_every=NEVER, log_every=1, batch_scenes=args.batch_scenes,
                          data_budget_mb=args.data_budget_mb, precision=args.precision, compile=args.compile)
@@ -109,7 +113,7 @@ def main() -> None:
     seconds = sum(config.rays * world / m["rays_per_s"] for m in measured)  # rays_per_s counts every rank
     rays_per_s = config.rays * world * len(measured) / seconds
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # ru_maxrss is in KiB on Linux
-    print(f"config: {args.conditioning}, {model.samples_coarse}+{model.samples_fine} samples, "
+    print(f"config: {args.model_config or args.conditioning}, {model.samples_coarse}+{model.samples_fine} samples, "
           f"{model.num_views} source views, {config.rays} rays/step over {args.batch_scenes or 'default'} "
           f"scene(s), {args.resolution} px, {args.precision}{', compiled' if args.compile else ''}, "
           f"{torch.get_num_threads()} torch threads" + (f" x {world} DDP processes" if world > 1 else ""))
