@@ -5,6 +5,7 @@
 # left before END_AT seconds. The run folders are packed into $OUT.
 #   python3 -m pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl && export PYTHONPATH=/tmp/site
 #   bash scripts/gpu_warm_runs.sh cuda auto 1      # DEVICE, TRAIN_MINUTES (auto: until END_AT), SCALE of scene counts
+# RAYS=16384 (environment) for 5x the rays per second of the 4,096 that ran (docs/training-on-gpu.md).
 # .whl holds trimesh and embreex for the GPU machine's Python (synth needs them; docs/training-on-gpu.md).
 set -u
 DEV=${1:-cuda}; MIN=${2:-auto}; SCALE=${3:-1}
@@ -32,7 +33,7 @@ ins synth $W/smoke --scenes 10 --views 12 --test-views 2 --resolution 120 --layo
   || { el "smoke synth failed"; tail -5 $W/smoke_syn.log; kill $SYN; exit 1; }
 FAST="--init insertnerf_cli/weights/insertnerf-fast.pt --model-config examples/fast-prior-model.json"
 FULL="--init insertnerf_cli/weights/insertnerf.pt --model-config examples/full-prior-model.json"
-COMMON="--device $DEV --rays 4096 --batch-scenes 8 --seed 0 --data-budget-mb 30000"
+COMMON="--device $DEV --rays ${RAYS:-4096} --batch-scenes 8 --seed 0 --data-budget-mb 30000"
 for m in FAST FULL; do  # fail fast, with time left to mend and rerun, if the CUDA path breaks
   ins train $W/smoke --out $W/smoke_$m ${!m} $COMMON --batch-scenes 2 --steps 4 --val-every 2 --ckpt-every 2 > $W/smoke_$m.log 2>&1 \
     || { el "smoke $m failed"; tr '\r' '\n' < $W/smoke_$m.log | tail -25; kill $SYN; pkill -f "synth $W"; exit 1; }
