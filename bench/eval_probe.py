@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+import tempfile
 from pathlib import Path
 
 import torch
@@ -25,6 +26,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli import scenes, view_renderer  # noqa: E402
+from insertnerf_cli.checkpoint import bundled_checkpoint, export_weights  # noqa: E402
 from insertnerf_cli.model import insertnerf  # noqa: E402
 from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
 from insertnerf_cli.scenes.geometry import bounds_from_depths  # noqa: E402
@@ -57,8 +59,11 @@ def main() -> None:
     parser.add_argument("--sample-views", type=int, default=None,
                         help="per sample, aggregate only the K views nearest in angle to the query ray")
     args = parser.parse_args()
-    if args.sample_views is not None:
-        patch_sample_views(args.sample_views)
+    checkpoint = args.checkpoint
+    if args.sample_views is not None:  # the config's own setting, in a copy: whatever the checkpoint carries
+        scratch = tempfile.TemporaryDirectory(prefix="eval_probe_")
+        checkpoint = export_weights(checkpoint or bundled_checkpoint(), Path(scratch.name) / "probe.pt",
+                                    sample_views=args.sample_views)
     if args.in_disparity:
         patch_in_disparity()
     patch_bounds(args.near_scale, args.far_scale, args.global_bounds, args.depth_bounds)
@@ -70,7 +75,7 @@ def main() -> None:
         patch_weight_power(args.weight_power)
     counts = tuple(int(v) for v in args.views.split(","))
     for capture in args.captures.split(","):
-        run = run_eval(args.root / capture, EvalConfig(views=counts, checkpoint=args.checkpoint,
+        run = run_eval(args.root / capture, EvalConfig(views=counts, checkpoint=checkpoint,
                                                          max_views=args.max_views))
         cells = " | ".join(f"{r.reference_views} views {r.psnr:.2f} / {r.ssim:.3f}" for r in run.reports)
         print(f"near x{args.near_scale} far x{args.far_scale} global {args.global_bounds} depth {args.depth_bounds} "
@@ -157,16 +162,6 @@ def patch_in_disparity() -> None:
         return stratified(rays, count, jitter=jitter, in_disparity=True)
 
     insertnerf.stratified_samples = in_disparity
-
-
-def patch_sample_views(k: int) -> None:
-    """Make every sample see only its k views nearest in angle, whatever the checkpoint's ``sample_views``."""
-    project = insertnerf.project_samples
-
-    def nearest(encoded, points, directions):
-        return project(encoded, points, directions).nearest_in_angle(k)
-
-    insertnerf.project_samples = nearest
 
 
 if __name__ == "__main__":

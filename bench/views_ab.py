@@ -13,17 +13,13 @@ weights; the angular colour prior needs no training), through a copy in a tempor
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import tempfile
 from pathlib import Path
 
-import torch
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.checkpoint import (build_model, bundled_checkpoint, read_checkpoint,  # noqa: E402
-                                      save_checkpoint)
+from insertnerf_cli.checkpoint import bundled_checkpoint, export_weights  # noqa: E402
 from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
@@ -57,10 +53,7 @@ def main() -> None:
 
 def with_colour_prior(checkpoint: Path, views: int, folder: Path) -> Path:
     """A copy of ``checkpoint`` in ``folder`` whose config has colour_prior_views = ``views``, named after both."""
-    source = read_checkpoint(checkpoint)
-    config = dataclasses.replace(source.model_config, colour_prior_views=views)
-    model = build_model(dataclasses.replace(source, model_config=config), torch.device("cpu"))
-    return save_checkpoint(folder / f"{checkpoint.stem}-prior{views}.pt", model, config)
+    return export_weights(checkpoint, folder / f"{checkpoint.stem}-prior{views}.pt", colour_prior_views=views)
 
 
 if __name__ == "__main__":
