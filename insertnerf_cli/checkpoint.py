@@ -181,10 +181,11 @@ def checkpoint_sha256(path: Path) -> str:
 
 
 # Config fields that change how trained weights render, not what they are: set at export without retraining.
-INFERENCE_FIELDS = ("colour_prior_views", "sample_views")
+INFERENCE_FIELDS = ("colour_prior_views", "sample_views", "consistency_temperature_coarse",
+                    "consistency_temperature_fine", "consistency_views")
 
 
-def export_weights(source: str | Path, destination: str | Path, **inference: int) -> Path:
+def export_weights(source: str | Path, destination: str | Path, **inference: int | float) -> Path:
     """Write the weights and config of a training checkpoint without its optimizer and RNG state.
 
     This is how the bundled ``weights/insertnerf.pt`` is made from a run's checkpoint: a third of the size,

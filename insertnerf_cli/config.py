@@ -45,6 +45,12 @@ class ModelConfig:
     # the query ray (projection.nearest_in_angle); 0: every view. A render asked for more views than training
     # drew then still feeds the aggregator statistics over a training-like count, chosen per sample (issue 27).
     sample_views: int = 0
+    # Photo-consistency (model/consistency.py, issue 27): T > 0 multiplies a pass's compositing weights by
+    # exp(-v / T), v the variance of the reference colours over the ``consistency_views`` views nearest in angle,
+    # so the weight moves to the depths where the views agree (a plane-sweep cue, no parameters); 0: off.
+    consistency_temperature_coarse: float = 0.0
+    consistency_temperature_fine: float = 0.0
+    consistency_views: int = 4
     # --- HyperNet modules and the NeRF MLP
     nerf_width: int = 32
     nerf_layers: int = 4  # geometry layers, each preceded by a HyperNet module
@@ -86,7 +92,8 @@ class ModelConfig:
                   "samples_coarse", "samples_fine", "num_views")
         _at_least(self, 0, "pe_freqs_pos", "pe_freqs_dir", "loss_backbone_weight", "loss_dynamic_weight",
                   "loss_depth_weight", "loss_distortion_weight", "colour_prior_views",
-                  "sample_views")
+                  "sample_views", "consistency_temperature_coarse", "consistency_temperature_fine")
+        _at_least(self, 2, "consistency_views")
         if self.coord_scale <= 0 or not all(0.0 <= c <= 1.0 for c in self.background):
             raise ValueError(f"coord_scale must be positive and background colours in [0, 1], got "
                              f"coord_scale={self.coord_scale}, background={self.background}")

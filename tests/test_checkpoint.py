@@ -136,7 +136,8 @@ def test_export_keeps_weights_and_config_and_drops_training_state(tmp_path):
     for name, tensor in model.state_dict().items():
         assert torch.equal(copy.model_state[name], tensor), name
     assert exported.stat().st_size < source.stat().st_size
-    retuned = read_checkpoint(export_weights(source, tmp_path / "retuned.pt", sample_views=12))
-    assert retuned.model_config == dataclasses.replace(TINY, sample_views=12)
+    retuned = read_checkpoint(export_weights(source, tmp_path / "retuned.pt", sample_views=12,
+                                             consistency_temperature_fine=0.01))
+    assert retuned.model_config == dataclasses.replace(TINY, sample_views=12, consistency_temperature_fine=0.01)
     with pytest.raises(ValueError, match="samples_fine"):
         export_weights(source, tmp_path / "broken.pt", samples_fine=4)

@@ -129,11 +129,13 @@ def test_full_model_forward_losses_and_finite_gradients_everywhere(conditioning)
     assert all(torch.isfinite(p.grad).all() for p in model.parameters())
 
 
-@pytest.mark.parametrize("conditioning", ["hyper", "concat"])
-def test_inference_render_matches_the_fine_pass_of_forward(conditioning):
-    """model.render skips the coarse appearance branch; what it returns must not change."""
+@pytest.mark.parametrize("conditioning,consistency", [("hyper", 0.0), ("concat", 0.0), ("hyper", 0.01)])
+def test_inference_render_matches_the_fine_pass_of_forward(conditioning, consistency):
+    """model.render skips the coarse appearance branch; what it returns must not change (with the
+    photo-consistency cue on both passes too)."""
     torch.manual_seed(1)
-    model = InsertNeRF(dataclasses.replace(TINY, conditioning=conditioning)).eval()
+    model = InsertNeRF(dataclasses.replace(TINY, conditioning=conditioning, consistency_temperature_coarse=consistency,
+                                           consistency_temperature_fine=consistency)).eval()
     with torch.no_grad():
         for p in model.parameters():  # away from the initialisation, so that every branch matters
             p.add_(0.3 * torch.randn_like(p))

@@ -62,7 +62,10 @@ def bundled_exact_and_fast(size: int, shortcuts: Shortcuts):
 @pytest.mark.parametrize("stride", [2, 3])
 def test_coarse_grid_costs_little_against_the_exact_path_with_the_bundled_weights(stride):
     exact, fast, truth = bundled_exact_and_fast(32, Shortcuts(stride, 0.0, fine_stride=1))
-    assert psnr(((fast.rgb - exact.rgb) ** 2).mean()) > 25.0  # 30 and 26 dB here; 40-44 dB at 100 px
+    # 27.7 and 24.9 dB here (30 and 26 before the bundled weights' photo-consistency cue sharpened the coarse
+    # weights that the grid's pixels borrow); 40-44 dB at 100 px. On the dev captures the shortcut path scores
+    # at or above the exact one with the cue (docs/model-card.md, round 11).
+    assert psnr(((fast.rgb - exact.rgb) ** 2).mean()) > 24.0
     # no worse against the true image than the exact path, to within 0.3 dB
     assert psnr(((fast.rgb - truth) ** 2).mean()) > psnr(((exact.rgb - truth) ** 2).mean()) - 0.3
 

@@ -9,6 +9,7 @@ from ..rays import Rays
 from ..compositing import Composite, composite, composite_weights
 from ..sampling import RaySamples, importance_samples, stratified_samples
 from .aggregate import ScaleAggregator, angular_prior, reweigh
+from .consistency import colour_variance, sharpen
 from .encoder import UNetEncoder, pad_to_stride
 from .losses import compute_losses
 from .nerf import NeRFHead
@@ -69,10 +70,12 @@ class InsertNeRF(nn.Module):
         backdrop = self.backdrop(encoded, rays)  # [R, 3] what the ray sees past its far bound
         coarse_samples = stratified_samples(rays, cfg.samples_coarse, jitter=train,
                                             in_disparity=cfg.sample_in_disparity)
-        coarse, dynamic_coarse = self.render_pass(self.coarse_head, encoded, rays, coarse_samples, backdrop)
+        coarse, dynamic_coarse = self.render_pass(self.coarse_head, encoded, rays, coarse_samples, backdrop,
+                                                  cfg.consistency_temperature_coarse)
         fine_samples = importance_samples(coarse_samples, coarse.weights, cfg.samples_fine, jitter=train,
                                           near=rays.near, far=rays.far)
-        fine, dynamic_fine = self.render_pass(self.fine_head, encoded, rays, fine_samples, backdrop)
+        fine, dynamic_fine = self.render_pass(self.fine_head, encoded, rays, fine_samples, backdrop,
+                                              cfg.consistency_temperature_fine)
         return RenderOutput(coarse=coarse, fine=fine, dynamic_coarse=dynamic_coarse, dynamic_fine=dynamic_fine,
                             coarse_samples=coarse_samples, fine_samples=fine_samples)
 
@@ -105,7 +108,10 @@ class InsertNeRF(nn.Module):
         samples = stratified_samples(rays, cfg.samples_coarse, jitter=False, in_disparity=cfg.sample_in_disparity)
         coarse = self.observe(encoded, rays, samples, colour=False)
         _, density = self.coarse_head.geometry(coarse.points, coarse.conds)
-        return samples, composite_weights(density, samples.edges, rays.directions.norm(dim=-1))
+        weights = composite_weights(density, samples.edges, rays.directions.norm(dim=-1))
+        if cfg.consistency_temperature_coarse:
+            weights = sharpen(weights, coarse.colour_variance, cfg.consistency_temperature_coarse)
+        return samples, weights
 
     def render_fine(self, encoded: EncodedViews, rays: Rays, coarse_samples: RaySamples,
                     weights: Tensor) -> Composite:
@@ -117,17 +123,18 @@ class InsertNeRF(nn.Module):
                                           near=rays.near, far=rays.far)
         fine = self.observe(encoded, rays, fine_samples)
         return self.shade(self.fine_head, fine, rays, fine_samples, fine.reference_colour(),
-                          self.backdrop(encoded, rays))
+                          self.backdrop(encoded, rays), cfg.consistency_temperature_fine)
 
     def render_pass(self, head: NeRFHead, encoded: EncodedViews, rays: Rays, samples: RaySamples,
-                    backdrop: Tensor) -> tuple[Composite, Tensor]:
-        """sample -> project -> aggregate -> hypernet + nerf -> composite, for one set of samples.
+                    backdrop: Tensor, temperature: float = 0.0) -> tuple[Composite, Tensor]:
+        """sample -> project -> aggregate -> hypernet + nerf -> composite, for one set of samples
+        (``temperature``: the pass's photo-consistency, 0 = none).
 
         Returns the composite and the dynamic-weight colour [R, 3] composited with the detached weights.
         """
         seen = self.observe(encoded, rays, samples)
         reference = seen.reference_colour()  # [R, S, 3]
-        main = self.shade(head, seen, rays, samples, reference, backdrop)
+        main = self.shade(head, seen, rays, samples, reference, backdrop, temperature)
         return main, composite(main.weights.detach(), reference, samples.t, backdrop).rgb
 
     def observe(self, encoded: EncodedViews, rays: Rays, samples: RaySamples, colour: bool = True) -> SampleFeatures:
@@ -141,23 +148,29 @@ class InsertNeRF(nn.Module):
         seen = project_samples(encoded, points, rays.directions)
         if self.config.sample_views:
             seen = seen.nearest_in_angle(self.config.sample_views)
+        variance = None
+        if self.config.consistency_temperature_coarse or self.config.consistency_temperature_fine:
+            variance = colour_variance(seen.colours, seen.mask, seen.ray_diff, self.config.consistency_views,
+                                       samples_n)  # [R, S]
         inputs = [*seen.features[:-1], torch.cat([seen.features[-1], seen.colours], dim=1)]  # [V, C_l, P]
         descriptors, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in zip(self.aggregators, inputs)))
         dynamic = torch.stack(dynamics).mean(dim=0)  # [V, 1, P]
         if colour and self.config.colour_prior_views:
             dynamic = reweigh(dynamic, angular_prior(seen.ray_diff, seen.mask, self.config.colour_prior_views))
         return SampleFeatures(points=points, conds=tuple(d.reshape(rays_n, samples_n, -1) for d in descriptors),
-                              dynamic=dynamic, colours=seen.colours)
+                              dynamic=dynamic, colours=seen.colours, colour_variance=variance)
 
     def shade(self, head: NeRFHead, seen: SampleFeatures, rays: Rays, samples: RaySamples,
-              reference: Tensor, backdrop: Tensor) -> Composite:
+              reference: Tensor, backdrop: Tensor, temperature: float = 0.0) -> Composite:
         """The conditioned field at the samples, blended with the reference colour [R, S, 3], composited over
-        ``backdrop`` [R, 3]."""
+        ``backdrop`` [R, 3]; with ``temperature`` > 0 the weights sharpened toward photo-consistent samples."""
         field = head(seen.points, rays.directions, seen.conds)
         colour = field.colour
         if self.config.blend_reference_colour:
             colour = field.blend * colour + (1.0 - field.blend) * reference  # [R, S, 3]
         weights = composite_weights(field.density, samples.edges, rays.directions.norm(dim=-1))
+        if temperature:
+            weights = sharpen(weights, seen.colour_variance, temperature)
         return composite(weights, colour, samples.t, backdrop)
 
     def losses(self, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews, rays: Rays | None = None,

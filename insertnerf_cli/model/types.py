@@ -97,12 +97,15 @@ class SampleFeatures:
         dynamic: [V, 1, R * S] view weights of the reference colour: the dynamic weights averaged over the scales
             (times the angular prior with ``colour_prior_views``), summing to 1 where a view sees the sample.
         colours: [V, 3, R * S] reference colours at the samples' projections (zero where a view cannot see).
+        colour_variance: [R, S] how much the nearest views disagree on each sample's colour
+            (consistency.colour_variance), or None where the config uses no photo-consistency.
     """
 
     points: Tensor  # [R, S, 3]
     conds: tuple[Tensor, ...]  # [R, S, D_l] each
     dynamic: Tensor  # [V, 1, R * S]
     colours: Tensor  # [V, 3, R * S]
+    colour_variance: Tensor | None = None  # [R, S]
 
     def reference_colour(self) -> Tensor:
         """[R, S, 3] the reference colours blended by the dynamic weights."""
