@@ -46,8 +46,9 @@ class ModelConfig:
     # drew then still feeds the aggregator statistics over a training-like count, chosen per sample (issue 27).
     sample_views: int = 0
     # Photo-consistency (model/consistency.py, issue 27): T > 0 multiplies a pass's compositing weights by
-    # exp(-v / T), v the variance of the reference colours over the ``consistency_views`` views nearest in angle,
-    # so the weight moves to the depths where the views agree (a plane-sweep cue, no parameters); 0: off.
+    # exp(-v / T), v the variance of the reference colours under the lumigraph prior of ``consistency_views`` K
+    # (the K-1 views nearest in angle), so the weight moves to the depths where the views agree (a plane-sweep
+    # cue, no parameters); 0: off.
     consistency_temperature_coarse: float = 0.0
     consistency_temperature_fine: float = 0.0
     consistency_views: int = 4

@@ -16,8 +16,9 @@ from .aggregate import angular_prior, weighted_moments
 
 
 def colour_variance(colours: Tensor, mask: Tensor, ray_diff: Tensor, views: int, samples: int) -> Tensor:
-    """[R, S] summed RGB variance of the reference colours of each sample over its ``views`` views nearest in angle
-    to the query ray (weighted by the lumigraph prior, so the nearest count most).
+    """[R, S] summed RGB variance of the reference colours of each sample under the lumigraph prior over its
+    ``views`` views nearest in angle to the query ray (aggregate.angular_prior: the K-th nearest and farther views
+    get no weight, so K = 4 takes the variance over the 3 nearest, the nearest weighing most).
 
     Args:
         colours: [V, 3, P] reference colours at the samples' projections (zero where a view cannot see).

@@ -106,7 +106,8 @@ class InsertNeRF(nn.Module):
         cfg = self.config
         rays = rays.to(device=self.background.device, dtype=self.background.dtype)
         samples = stratified_samples(rays, cfg.samples_coarse, jitter=False, in_disparity=cfg.sample_in_disparity)
-        coarse = self.observe(encoded, rays, samples, colour=False)
+        coarse = self.observe(encoded, rays, samples, colour=False,
+                              variance=bool(cfg.consistency_temperature_coarse))
         _, density = self.coarse_head.geometry(coarse.points, coarse.conds)
         weights = composite_weights(density, samples.edges, rays.directions.norm(dim=-1))
         if cfg.consistency_temperature_coarse:
@@ -121,7 +122,7 @@ class InsertNeRF(nn.Module):
         rays = rays.to(device=self.background.device, dtype=self.background.dtype)
         fine_samples = importance_samples(coarse_samples, weights, cfg.samples_fine, jitter=False,
                                           near=rays.near, far=rays.far)
-        fine = self.observe(encoded, rays, fine_samples)
+        fine = self.observe(encoded, rays, fine_samples, variance=bool(cfg.consistency_temperature_fine))
         return self.shade(self.fine_head, fine, rays, fine_samples, fine.reference_colour(),
                           self.backdrop(encoded, rays), cfg.consistency_temperature_fine)
 
@@ -132,33 +133,35 @@ class InsertNeRF(nn.Module):
 
         Returns the composite and the dynamic-weight colour [R, 3] composited with the detached weights.
         """
-        seen = self.observe(encoded, rays, samples)
+        seen = self.observe(encoded, rays, samples, variance=bool(temperature))
         reference = seen.reference_colour()  # [R, S, 3]
         main = self.shade(head, seen, rays, samples, reference, backdrop, temperature)
         return main, composite(main.weights.detach(), reference, samples.t, backdrop).rgb
 
-    def observe(self, encoded: EncodedViews, rays: Rays, samples: RaySamples, colour: bool = True) -> SampleFeatures:
+    def observe(self, encoded: EncodedViews, rays: Rays, samples: RaySamples, colour: bool = True,
+                variance: bool = False) -> SampleFeatures:
         """Project the samples into every reference view and aggregate what the views see, per scale.
 
         ``colour=False``: the caller uses no reference colour (the inference coarse pass), so the colour prior,
-        which changes nothing else, is skipped.
+        which changes nothing else, is skipped. ``variance``: also the photo-consistency cost the caller's
+        sharpening needs (SampleFeatures.colour_variance).
         """
         points = samples.points(rays)  # [R, S, 3]
         rays_n, samples_n = points.shape[:2]
         seen = project_samples(encoded, points, rays.directions)
         if self.config.sample_views:
             seen = seen.nearest_in_angle(self.config.sample_views)
-        variance = None
-        if self.config.consistency_temperature_coarse or self.config.consistency_temperature_fine:
-            variance = colour_variance(seen.colours, seen.mask, seen.ray_diff, self.config.consistency_views,
-                                       samples_n)  # [R, S]
+        cost = None
+        if variance:
+            cost = colour_variance(seen.colours, seen.mask, seen.ray_diff, self.config.consistency_views,
+                                   samples_n)  # [R, S]
         inputs = [*seen.features[:-1], torch.cat([seen.features[-1], seen.colours], dim=1)]  # [V, C_l, P]
         descriptors, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in zip(self.aggregators, inputs)))
         dynamic = torch.stack(dynamics).mean(dim=0)  # [V, 1, P]
         if colour and self.config.colour_prior_views:
             dynamic = reweigh(dynamic, angular_prior(seen.ray_diff, seen.mask, self.config.colour_prior_views))
         return SampleFeatures(points=points, conds=tuple(d.reshape(rays_n, samples_n, -1) for d in descriptors),
-                              dynamic=dynamic, colours=seen.colours, colour_variance=variance)
+                              dynamic=dynamic, colours=seen.colours, colour_variance=cost)
 
     def shade(self, head: NeRFHead, seen: SampleFeatures, rays: Rays, samples: RaySamples,
               reference: Tensor, backdrop: Tensor, temperature: float = 0.0) -> Composite:
