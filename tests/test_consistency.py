@@ -8,6 +8,7 @@ import torch
 
 from insertnerf_cli.config import ModelConfig
 from insertnerf_cli.model import InsertNeRF
+from insertnerf_cli.model.aggregate import angular_prior
 from insertnerf_cli.model.consistency import colour_variance, sharpen
 from insertnerf_cli.model.projection import project_samples
 from insertnerf_cli.rays import rays_from_pixels
@@ -21,7 +22,7 @@ SIZE = 32
 CENTRE = torch.tensor([[[SIZE / 2 + dx, SIZE / 2 + dy] for dx in (-2.0, 0.0, 2.0) for dy in (-2.0, 0.0, 2.0)]])
 
 
-def hit_depth(cameras, rays) -> torch.Tensor:
+def hit_depth(rays) -> torch.Tensor:
     """[R] exact ray parameter of each ray's first hit on the sphere (every ray here hits it)."""
     d, o = rays.directions.double(), rays.origins.double()
     a, b = (d * d).sum(-1), (d * o).sum(-1)
@@ -31,22 +32,22 @@ def hit_depth(cameras, rays) -> torch.Tensor:
 
 
 def centre_rays():
-    target = orbit_cameras(1, SIZE, phase=0.3)
-    return target, rays_from_pixels(target, CENTRE, torch.tensor([NEAR]), torch.tensor([FAR]))
+    return rays_from_pixels(orbit_cameras(1, SIZE, phase=0.3), CENTRE, torch.tensor([NEAR]), torch.tensor([FAR]))
 
 
 def test_the_views_agree_most_at_the_true_surface():
     views = sphere_views(8, SIZE)
-    target, rays = centre_rays()
+    rays = centre_rays()
     samples = stratified_samples(rays, 96, jitter=False)
     encoded = InsertNeRF(TINY).eval().encode(views)
     seen = project_samples(encoded, samples.points(rays), rays.directions)
-    cost = colour_variance(seen.colours, seen.mask, seen.ray_diff, views=4, samples=96)  # [R, S]
+    prior = angular_prior(seen.ray_diff, seen.mask, views=4)
+    cost = colour_variance(seen.colours, seen.mask, prior, samples=96)  # [R, S]
     best = samples.t.gather(1, cost.argmin(dim=1, keepdim=True))[:, 0]
     spacing = (FAR - NEAR) / 96
     # Not every ray: a free-space point whose nearest views all see the plain white background agrees there too
     # (the textureless ambiguity of any stereo cue), so the learned weights stay in charge; most rays find it.
-    assert ((best - hit_depth(target, rays)).abs() <= 3 * spacing).float().mean() >= 0.75
+    assert ((best - hit_depth(rays)).abs() <= 3 * spacing).float().mean() >= 0.75
     assert torch.all(cost.amax(dim=1) > 10 * cost.amin(dim=1).clamp(min=1e-8))
 
 
@@ -56,7 +57,7 @@ def test_a_sample_fewer_than_two_views_see_gets_its_rays_worst_cost():
     ray_diff = torch.zeros(2, 4, 3)
     ray_diff[:, 3] = 1.0
     ray_diff[0, 0], ray_diff[1, 0] = 0.05, 0.1  # both views a little off the query ray
-    cost = colour_variance(colours * mask, mask, ray_diff, views=3, samples=3)[0]
+    cost = colour_variance(colours * mask, mask, angular_prior(ray_diff, mask, views=3), samples=3)[0]
     assert cost[2] == cost[:2].max() and cost[0] > 0 and cost[1] > 0
 
 
@@ -75,8 +76,8 @@ def test_sharpen_keeps_each_rays_opacity_and_moves_weight_to_the_consistent_samp
 
 def test_sharpened_weights_put_the_untrained_depth_at_the_surface():
     views = sphere_views(8, SIZE)
-    target, rays = centre_rays()
-    truth = hit_depth(target, rays)
+    rays = centre_rays()
+    truth = hit_depth(rays)
     depth = {}
     for temperature in (0.0, 0.002):
         torch.manual_seed(0)

@@ -61,8 +61,9 @@ def weighted_moments(values: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
     return mean, (second - mean * mean).clamp(min=0.0)
 
 
-def angular_prior(ray_diff: Tensor, mask: Tensor, views: int) -> Tensor:
-    """Unstructured-lumigraph view weights [V, 1, P] (Buehler et al. 2001) from ray_diff [V, 4, P], mask [V, 1, P].
+def angular_prior(ray_diff: Tensor, mask: Tensor, views: int, angle: Tensor | None = None) -> Tensor:
+    """Unstructured-lumigraph view weights [V, 1, P] (Buehler et al. 2001) from ray_diff [V, 4, P], mask [V, 1, P]
+    (``angle``: ray_angle(ray_diff) [V, 1, P] where the caller already has it, for priors of several K).
 
     A view's weight is (1 - a / a_K) / a, a the angle between its ray through the sample and the query ray, a_K
     the ``views``-th smallest angle among the views that see the sample: the nearest views in angle dominate and
@@ -72,7 +73,7 @@ def angular_prior(ray_diff: Tensor, mask: Tensor, views: int) -> Tensor:
     view pulls a pixel's colour toward what the farther views see. Cameras only, so no gradient.
     """
     with torch.no_grad():
-        angle = ray_angle(ray_diff)  # [V, 1, P]
+        angle = ray_angle(ray_diff) if angle is None else angle  # [V, 1, P]
         unseen = torch.full_like(angle, 2.0 * math.pi)  # larger than any angle: never among the K nearest
         angle = torch.where(mask > 0, angle, unseen)
         count = min(views, angle.shape[0])

@@ -12,25 +12,23 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .aggregate import angular_prior, weighted_moments
+from .aggregate import weighted_moments
 
 
-def colour_variance(colours: Tensor, mask: Tensor, ray_diff: Tensor, views: int, samples: int) -> Tensor:
-    """[R, S] summed RGB variance of the reference colours of each sample under the lumigraph prior over its
-    ``views`` views nearest in angle to the query ray (aggregate.angular_prior: the K-th nearest and farther views
-    get no weight, so K = 4 takes the variance over the 3 nearest, the nearest weighing most).
+def colour_variance(colours: Tensor, mask: Tensor, prior: Tensor, samples: int) -> Tensor:
+    """[R, S] summed RGB variance of the reference colours of each sample under view weights ``prior``: the
+    lumigraph prior of the K views nearest in angle (aggregate.angular_prior: the K-th nearest and farther views get
+    no weight, so K = 4 takes the variance over the 3 nearest, the nearest weighing most).
 
     Args:
         colours: [V, 3, P] reference colours at the samples' projections (zero where a view cannot see).
         mask: [V, 1, P] 1 where the view sees the sample.
-        ray_diff: [V, 4, P] per-view direction cues (projection.py).
-        views: K, the views the variance is taken over.
+        prior: [V, 1, P] view weights summing to 1 over the views that see the sample.
         samples: S, samples per ray (P = R * S).
     A sample fewer than two views see has no evidence either way: it gets its ray's largest variance, so it is
     never preferred, and a ray no two views see keeps its weights.
     """
     with torch.no_grad():
-        prior = angular_prior(ray_diff, mask, views)  # [V, 1, P]
         _, var = weighted_moments(colours, prior)  # [1, 3, P]
         cost = var.sum(dim=1)[0].reshape(-1, samples)  # [R, S]
         lonely = (mask.sum(dim=0)[0] < 2).reshape(-1, samples)  # [R, S]

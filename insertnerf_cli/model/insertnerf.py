@@ -13,7 +13,7 @@ from .consistency import colour_variance, sharpen
 from .encoder import UNetEncoder, pad_to_stride
 from .losses import compute_losses
 from .nerf import NeRFHead
-from .projection import project_samples, projection_matrices
+from .projection import project_samples, projection_matrices, ray_angle
 from .types import EncodedViews, LossTerms, RenderOutput, SampleFeatures, SourceViews
 
 # The infinity sample's depth in units of the ray's far bound (InsertNeRF.backdrop).
@@ -151,15 +151,18 @@ class InsertNeRF(nn.Module):
         seen = project_samples(encoded, points, rays.directions)
         if self.config.sample_views:
             seen = seen.nearest_in_angle(self.config.sample_views)
+        prior_views = self.config.colour_prior_views if colour else 0
+        # One angle per view and sample serves the colour prior and the cue's prior (the asin is a third of each).
+        angle = ray_angle(seen.ray_diff) if variance or prior_views else None  # [V, 1, P]
         cost = None
         if variance:
-            cost = colour_variance(seen.colours, seen.mask, seen.ray_diff, self.config.consistency_views,
-                                   samples_n)  # [R, S]
+            weights = angular_prior(seen.ray_diff, seen.mask, self.config.consistency_views, angle)
+            cost = colour_variance(seen.colours, seen.mask, weights, samples_n)  # [R, S]
         inputs = [*seen.features[:-1], torch.cat([seen.features[-1], seen.colours], dim=1)]  # [V, C_l, P]
         descriptors, dynamics = zip(*(agg(f, seen.mask, seen.ray_diff) for agg, f in zip(self.aggregators, inputs)))
         dynamic = torch.stack(dynamics).mean(dim=0)  # [V, 1, P]
-        if colour and self.config.colour_prior_views:
-            dynamic = reweigh(dynamic, angular_prior(seen.ray_diff, seen.mask, self.config.colour_prior_views))
+        if prior_views:
+            dynamic = reweigh(dynamic, angular_prior(seen.ray_diff, seen.mask, prior_views, angle))
         return SampleFeatures(points=points, conds=tuple(d.reshape(rays_n, samples_n, -1) for d in descriptors),
                               dynamic=dynamic, colours=seen.colours, colour_variance=cost)
 
