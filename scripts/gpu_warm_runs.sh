@@ -6,36 +6,52 @@
 #   python3 -m pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl && export PYTHONPATH=/tmp/site
 #   bash scripts/gpu_warm_runs.sh cuda auto 1      # DEVICE, TRAIN_MINUTES (auto: until END_AT), SCALE of scene counts
 # RAYS=16384 (environment) for 5x the rays per second of the 4,096 that ran (docs/training-on-gpu.md).
+# SEED_SHIFT=N adds N to every synth seed (a fresh set); RUN_SPECS="NAME:FAST|FULL:LR:SEED ..." picks the runs.
+# MORE=M (a second call on the still-warm machine): resume every run of the first call for M more minutes, pack again.
 # .whl holds trimesh and embreex for the GPU machine's Python (synth needs them; docs/training-on-gpu.md).
 set -u
 DEV=${1:-cuda}; MIN=${2:-auto}; SCALE=${3:-1}
 OUT=${OUT:-/tmp/gpuout}; mkdir -p "$OUT"
-W=/tmp/g27; rm -rf $W; mkdir -p $W
+W=/tmp/g27
+RUN_SPECS=${RUN_SPECS:-A_fast3e4:FAST:3e-4:0 B_full3e4:FULL:3e-4:0 C_fast1e4:FAST:1e-4:0}
+RUNS=$(for r in $RUN_SPECS; do echo -n "${r%%:*} "; done)
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 PY=${PY:-python3}
 ins() { $PY -c "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli import main; main()" "$@"; }
 T0=$(date +%s); el() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null
 $PY -c "import torch, sys; print('torch', torch.__version__, 'cuda', torch.cuda.is_available(), sys.version.split()[0])"
+pack() { for r in $RUNS; do
+  tr '\r' '\n' < $W/$r.log | grep -v '^\s*$' | tail -4
+  tar -C $W -czf $OUT/$r.tgz $r/checkpoints/last.pt $r/checkpoints/config.json $r/metrics.jsonl $r/splits.json $r.log
+done; ls -la $OUT; el "end"; }
+FAST="--init insertnerf_cli/weights/insertnerf-fast.pt --model-config examples/fast-prior-model.json"
+FULL="--init insertnerf_cli/weights/insertnerf.pt --model-config examples/full-prior-model.json"
+COMMON="--device $DEV --rays ${RAYS:-4096} --batch-scenes ${BATCH:-8} --data-budget-mb 30000"
+if [ -n "${MORE:-}" ]; then  # the first call's runs go on from their last.pt, for MORE minutes more each
+  for r in $RUNS; do
+    TOTAL=$($PY -c "print(round($(cat $W/$r.minutes) + $MORE, 2))"); echo $TOTAL > $W/$r.minutes
+    ins train $W/mix --out $W/$r --resume --device $DEV --minutes $TOTAL >> $W/$r.log 2>&1 &
+  done
+  wait; el "resumed runs done"; pack; exit 0
+fi
+rm -rf $W; mkdir -p $W
 n() { $PY -c "print(max(2, round($1 * $SCALE)))"; }
 ( # data/make27.sh and data/make27s5.sh with other seeds, all seven sets at once
- ins synth $W/s4o --scenes $(n 40) --views 24 --test-views 3 --resolution 200 --layout object --seed 141 --workers 6 > $W/syn1.log 2>&1 &
- ins synth $W/s4r --scenes $(n 50) --views 24 --test-views 3 --resolution 200 --layout 360 --seed 142 --workers 6 --noise --jitter > $W/syn2.log 2>&1 &
- ins synth $W/s4f --scenes $(n 50) --views 24 --test-views 3 --resolution 200 --layout forward --seed 143 --workers 6 --noise --jitter > $W/syn3.log 2>&1 &
- ins synth $W/s5h --scenes $(n 40) --views 30 --test-views 4 --resolution 200 --layout handheld --seed 154 --workers 6 --photo > $W/syn4.log 2>&1 &
- ins synth $W/s5r --scenes $(n 40) --views 24 --test-views 3 --resolution 200 --layout 360 --seed 152 --workers 6 --photo > $W/syn5.log 2>&1 &
- ins synth $W/s5f --scenes $(n 30) --views 24 --test-views 3 --resolution 200 --layout forward --seed 153 --workers 6 --photo > $W/syn6.log 2>&1 &
- ins synth $W/s5o --scenes $(n 30) --views 24 --test-views 3 --resolution 200 --layout object --seed 151 --workers 6 > $W/syn7.log 2>&1 &
+ ins synth $W/s4o --scenes $(n 40) --views 24 --test-views 3 --resolution 200 --layout object --seed $(( 141 + ${SEED_SHIFT:-0} )) --workers 6 > $W/syn1.log 2>&1 &
+ ins synth $W/s4r --scenes $(n 50) --views 24 --test-views 3 --resolution 200 --layout 360 --seed $(( 142 + ${SEED_SHIFT:-0} )) --workers 6 --noise --jitter > $W/syn2.log 2>&1 &
+ ins synth $W/s4f --scenes $(n 50) --views 24 --test-views 3 --resolution 200 --layout forward --seed $(( 143 + ${SEED_SHIFT:-0} )) --workers 6 --noise --jitter > $W/syn3.log 2>&1 &
+ ins synth $W/s5h --scenes $(n 40) --views 30 --test-views 4 --resolution 200 --layout handheld --seed $(( 154 + ${SEED_SHIFT:-0} )) --workers 6 --photo > $W/syn4.log 2>&1 &
+ ins synth $W/s5r --scenes $(n 40) --views 24 --test-views 3 --resolution 200 --layout 360 --seed $(( 152 + ${SEED_SHIFT:-0} )) --workers 6 --photo > $W/syn5.log 2>&1 &
+ ins synth $W/s5f --scenes $(n 30) --views 24 --test-views 3 --resolution 200 --layout forward --seed $(( 153 + ${SEED_SHIFT:-0} )) --workers 6 --photo > $W/syn6.log 2>&1 &
+ ins synth $W/s5o --scenes $(n 30) --views 24 --test-views 3 --resolution 200 --layout object --seed $(( 151 + ${SEED_SHIFT:-0} )) --workers 6 > $W/syn7.log 2>&1 &
  wait
 ) &
 SYN=$!
 ins synth $W/smoke --scenes 10 --views 12 --test-views 2 --resolution 120 --layout 360 --seed 7 --workers 2 > $W/smoke_syn.log 2>&1 \
   || { el "smoke synth failed"; tail -5 $W/smoke_syn.log; kill $SYN; exit 1; }
-FAST="--init insertnerf_cli/weights/insertnerf-fast.pt --model-config examples/fast-prior-model.json"
-FULL="--init insertnerf_cli/weights/insertnerf.pt --model-config examples/full-prior-model.json"
-COMMON="--device $DEV --rays ${RAYS:-4096} --batch-scenes 8 --seed 0 --data-budget-mb 30000"
 for m in FAST FULL; do  # fail fast, with time left to mend and rerun, if the CUDA path breaks
-  ins train $W/smoke --out $W/smoke_$m ${!m} $COMMON --batch-scenes 2 --steps 4 --val-every 2 --ckpt-every 2 > $W/smoke_$m.log 2>&1 \
+  ins train $W/smoke --out $W/smoke_$m ${!m} $COMMON --seed 0 --batch-scenes 2 --steps 4 --val-every 2 --ckpt-every 2 > $W/smoke_$m.log 2>&1 \
     || { el "smoke $m failed"; tr '\r' '\n' < $W/smoke_$m.log | tail -25; kill $SYN; pkill -f "synth $W"; exit 1; }
   el "smoke $m ok: $(tr '\r' '\n' < $W/smoke_$m.log | grep -v '^\s*$' | tail -1)"
 done
@@ -44,14 +60,10 @@ mkdir -p $W/mix; for d in $W/s4? $W/s5?; do for s in $d/scene_*; do ln -s $s $W/
 el "mix: $(ls $W/mix | wc -l) scenes"
 if [ "$MIN" = auto ]; then MIN=$($PY -c "print(round(max(1.0, (${END_AT:-525} - $(( $(date +%s) - T0 )) - 30) / 60), 2))"); fi
 el "training minutes: $MIN"
-RUNS="A_fast3e4 B_full3e4 C_fast1e4"
-run() { ins train $W/mix --out $W/$1 $3 $COMMON --lr $2 --steps 200000 --minutes $MIN --val-every 100000 --ckpt-every 250 > $W/$1.log 2>&1 & }
-run A_fast3e4 3e-4 "$FAST"; run B_full3e4 3e-4 "$FULL"; run C_fast1e4 1e-4 "$FAST"
+for spec in $RUN_SPECS; do
+  IFS=: read -r name model lr seed <<< "$spec"; echo $MIN > $W/$name.minutes
+  ins train $W/mix --out $W/$name ${!model} $COMMON --seed $seed --lr $lr --steps 200000 --minutes $MIN --val-every 100000 --ckpt-every 250 > $W/$name.log 2>&1 &
+done
 sleep 60; nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader 2>/dev/null
 for r in $RUNS; do el "$r: $(tr '\r' '\n' < $W/$r.log | grep -v '^\s*$' | tail -1)"; done
-wait; el "training done"
-for r in $RUNS; do
-  tr '\r' '\n' < $W/$r.log | grep -v '^\s*$' | tail -4
-  tar -C $W -czf $OUT/$r.tgz $r/checkpoints/last.pt $r/checkpoints/config.json $r/metrics.jsonl $r/splits.json $r.log
-done
-ls -la $OUT; el "end"
+wait; el "training done"; pack
