@@ -198,3 +198,32 @@ def export_weights(source: str | Path, destination: str | Path, **inference: int
     checkpoint = read_checkpoint(source)
     model = build_model(checkpoint, torch.device("cpu"))
     return save_checkpoint(destination, model, replace(checkpoint.model_config, **inference))
+
+
+def average_weights(sources: list[str | Path], destination: str | Path, shares: list[float] | None = None) -> Path:
+    """Write the weighted mean of generators that share one model config (a "model soup").
+
+    Runs warm-started from one generator and trained on the same data with other seeds stay in one basin, so
+    their mean is a model too, often better than each (Wortsman et al., 2022). Floating-point tensors are
+    averaged (in float64); integer buffers (counters) come from the first source. ``shares``: one non-negative
+    number per source (default: equal), normalised to sum to 1.
+    """
+    shares = [1.0] * len(sources) if shares is None else list(shares)
+    if not sources or len(shares) != len(sources) or min(shares) < 0 or sum(shares) <= 0:
+        raise UserError("averaging needs one or more checkpoints and one non-negative share each, not all zero.")
+    checkpoints = [read_checkpoint(s) for s in sources]
+    first = checkpoints[0]
+    for other in checkpoints[1:]:
+        if other.model_config != first.model_config:
+            raise UserError(f"{other.path} has another model config than {first.path}; only generators of one "
+                            "config (inference fields included) can be averaged.")
+    total = sum(shares)
+    state = {}
+    for name, tensor in first.model_state.items():
+        if tensor.is_floating_point():
+            mean = sum(s / total * c.model_state[name].double() for s, c in zip(shares, checkpoints))
+            state[name] = mean.to(tensor.dtype)
+        else:
+            state[name] = tensor
+    model = build_model(replace(first, model_state=state), torch.device("cpu"))
+    return save_checkpoint(destination, model, first.model_config)

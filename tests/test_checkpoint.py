@@ -7,8 +7,8 @@ import pickle
 import pytest
 import torch
 
-from insertnerf_cli.checkpoint import (CHECKPOINT_VERSION, TrainState, bundled_checkpoint, export_weights,
-                                       load_model, read_checkpoint, save_checkpoint)
+from insertnerf_cli.checkpoint import (CHECKPOINT_VERSION, TrainState, average_weights, bundled_checkpoint,
+                                       export_weights, load_model, read_checkpoint, save_checkpoint)
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import InsertNeRF
 from test_train import TINY
@@ -141,3 +141,25 @@ def test_export_keeps_weights_and_config_and_drops_training_state(tmp_path):
     assert retuned.model_config == dataclasses.replace(TINY, sample_views=12, consistency_temperature_fine=0.01)
     with pytest.raises(ValueError, match="samples_fine"):
         export_weights(source, tmp_path / "broken.pt", samples_fine=4)
+
+
+def test_average_of_two_generators_is_their_midpoint_and_refuses_other_configs(tmp_path):
+    a, b = tiny_model(0), tiny_model(1)
+    pa = save_checkpoint(tmp_path / "a.pt", a, TINY)
+    pb = save_checkpoint(tmp_path / "b.pt", b, TINY)
+    soup = read_checkpoint(average_weights([pa, pb], tmp_path / "soup.pt"))
+    leaning = read_checkpoint(average_weights([pa, pb], tmp_path / "lean.pt", [3.0, 1.0]))
+    assert soup.model_config == TINY and soup.train_state is None
+    for name, ta in a.state_dict().items():
+        tb = b.state_dict()[name]
+        if ta.is_floating_point():
+            assert torch.allclose(soup.model_state[name], (ta + tb) / 2, atol=1e-6), name
+            assert torch.allclose(leaning.model_state[name], 0.75 * ta + 0.25 * tb, atol=1e-6), name
+        else:
+            assert torch.equal(soup.model_state[name], ta), name
+    other = save_checkpoint(tmp_path / "other.pt", a, dataclasses.replace(TINY, sample_views=12))
+    with pytest.raises(UserError) as err:
+        average_weights([pa, other], tmp_path / "bad.pt")
+    assert "config" in one_line(err)
+    with pytest.raises(UserError):
+        average_weights([pa, pb], tmp_path / "bad.pt", [0.0, 0.0])
