@@ -204,9 +204,9 @@ def average_weights(sources: list[str | Path], destination: str | Path, shares: 
     """Write the weighted mean of generators that share one model config (a "model soup").
 
     Runs warm-started from one generator and trained on the same data with other seeds stay in one basin, so
-    their mean is a model too, often better than each (Wortsman et al., 2022). Floating-point tensors are
-    averaged (in float64); integer buffers (counters) come from the first source. ``shares``: one non-negative
-    number per source (default: equal), normalised to sum to 1.
+    their mean is a model too, at times better than each (Wortsman et al., 2022; in issue 27's round 13 it landed
+    between its parts). Floating-point tensors are averaged (in float64); integer buffers (counters) come from the
+    first source. ``shares``: one non-negative number per source (default: equal), normalised to sum to 1.
     """
     shares = [1.0] * len(sources) if shares is None else list(shares)
     if not sources or len(shares) != len(sources) or min(shares) < 0 or sum(shares) <= 0:
@@ -217,6 +217,9 @@ def average_weights(sources: list[str | Path], destination: str | Path, shares: 
         if other.model_config != first.model_config:
             raise UserError(f"{other.path} has another model config than {first.path}; only generators of one "
                             "config (inference fields included) can be averaged.")
+        if {n: t.shape for n, t in other.model_state.items()} != {n: t.shape for n, t in first.model_state.items()}:
+            raise UserError(f"{other.path} holds other tensors than {first.path} under the same config; it is "
+                            "damaged or from another version: export it again.")
     total = sum(shares)
     state = {}
     for name, tensor in first.model_state.items():

@@ -1,5 +1,5 @@
 #!/bin/bash
-# Issue 27, round 10 on a lent GPU (one command of < 10 minutes, docs/training-on-gpu.md): a fresh synth-4 +
+# Issue 27, rounds 10 and 13 on a lent GPU (one command of < 10 minutes, docs/training-on-gpu.md): a fresh synth-4 +
 # synth-5 set like data/trainmix (other seeds), a 4-step CUDA smoke test of both generators while it renders,
 # then three runs side by side on the one GPU, warm-started from the bundled generators, each for the minutes
 # left before END_AT seconds. The run folders are packed into $OUT.
