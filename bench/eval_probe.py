@@ -5,7 +5,8 @@ normalised scene's per-view near/far bounds scaled, replaced by one pair for all
 spiral frames had them), by those of each view's references, or (synth scenes) by LLFF-like ones from the depth
 files; or the view-choice rule swapped (views.py: vector, dist, matrix); or the fine pass's compositing weights
 raised to a power (renormalised to the same opacity); or the coarse samples even in disparity; or each sample
-matched across only its K views nearest in angle. Prints one line per capture.
+matched across only its K views nearest in angle; or references ranked by frustum overlap too (round 13). Prints one
+line per capture.
 
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --far-scale 1.5 --captures beer,mold_gold_cape --max-views 3
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --method matrix --views 3,10,16
@@ -52,6 +53,9 @@ def main() -> None:
     parser.add_argument("--reference-bounds", choices=("span", "median"), default=None,
                         help="each view's bounds from its references: span = min near / max far, or their medians")
     parser.add_argument("--method", choices=VIEW_METHODS, default=None, help="view-choice rule for every scene")
+    parser.add_argument("--overlap-weight", type=float, default=None,
+                        help="rank references by the rule's distance + W * (1 - the share of the target's frustum "
+                             "points that land in their image)")
     parser.add_argument("--weight-power", type=float, default=None,
                         help="raise the fine pass's weights to this power (0 = the heaviest sample alone)")
     parser.add_argument("--in-disparity", action="store_true",
@@ -69,6 +73,8 @@ def main() -> None:
     patch_bounds(args.near_scale, args.far_scale, args.global_bounds, args.depth_bounds)
     if args.method is not None:
         patch_view_rule(args.method)
+    if args.overlap_weight is not None:
+        patch_overlap_rule(args.overlap_weight)
     if args.reference_bounds is not None:
         patch_reference_bounds(args.reference_bounds)
     if args.weight_power is not None:
@@ -81,7 +87,7 @@ def main() -> None:
         print(f"near x{args.near_scale} far x{args.far_scale} global {args.global_bounds} depth {args.depth_bounds} "
               f"rule {args.method} "
               f"from references {args.reference_bounds} weight power {args.weight_power} "
-              f"in disparity {args.in_disparity} sample views {args.sample_views} | "
+              f"in disparity {args.in_disparity} sample views {args.sample_views} overlap {args.overlap_weight} | "
               f"{capture} | {cells}", flush=True)
 
 
@@ -120,6 +126,48 @@ def patch_view_rule(method: str) -> None:
         self.method = method
 
     view_renderer.ViewRenderer.__init__ = with_rule
+
+
+OVERLAP_GRID = 8  # target pixels per side whose rays are tested against each reference's image
+OVERLAP_DEPTHS = 4  # points per ray, spread in disparity between the view's near and far bounds
+
+
+def frustum_overlap(camera, near: float, far: float, refs) -> torch.Tensor:
+    """[N] share of the target camera's frustum points (a grid of rays, points between near and far) that land
+    inside each reference image in front of it."""
+    h, w = camera.height, camera.width
+    v, u = torch.meshgrid(torch.linspace(0.5, h - 0.5, OVERLAP_GRID, dtype=torch.float64),
+                          torch.linspace(0.5, w - 0.5, OVERLAP_GRID, dtype=torch.float64), indexing="ij")
+    uv = torch.stack([u, v], -1).reshape(1, -1, 2)  # [1, G*G, 2]
+    depths = 1.0 / torch.linspace(1.0 / near, 1.0 / far, OVERLAP_DEPTHS, dtype=torch.float64)  # [D]
+    cam = camera.to(dtype=torch.float64)
+    points = torch.cat([cam.unproject(uv, torch.full(uv.shape[:2], float(d), dtype=torch.float64))[0]
+                        for d in depths])  # [D*G*G, 3]
+    ruv, rz = refs.to(dtype=torch.float64).project(points)  # [N, P, 2], [N, P]
+    inside = (rz > 0) & (ruv[..., 0] >= 0) & (ruv[..., 0] <= refs.width) & (ruv[..., 1] >= 0) \
+        & (ruv[..., 1] <= refs.height)
+    return inside.double().mean(-1)
+
+
+def patch_overlap_rule(weight: float) -> None:
+    """Make ViewRenderer.render pick its references by rule distance + weight * (1 - frustum overlap)."""
+    from insertnerf_cli.views import view_distances
+
+    render = view_renderer.ViewRenderer.render
+
+    def by_overlap(self, camera, near, far, exclude, views=None):
+        all_cams = self.scene.cameras.rescale(camera.height, camera.width)
+        score = view_distances(camera.c2w[0], self.scene.cameras.c2w, self.method) \
+            + weight * (1.0 - frustum_overlap(camera, near, far, all_cams))
+        score[sorted(set(exclude))] = float("inf")
+        chosen = torch.sort(score, stable=True).indices[: views or self.k].tolist()
+        self.references = lambda *_args, **_kwargs: chosen
+        try:
+            return render(self, camera, near, far, exclude, views)
+        finally:
+            del self.references
+
+    view_renderer.ViewRenderer.render = by_overlap
 
 
 def patch_reference_bounds(rule: str) -> None:
