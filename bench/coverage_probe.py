@@ -32,9 +32,7 @@ def seen_by(out_depth: torch.Tensor, camera, refs_cameras) -> np.ndarray:
     h, w = out_depth.shape
     uv = camera.pixel_grid().reshape(1, -1, 2).to(out_depth)
     points = camera.to(dtype=out_depth.dtype).unproject(uv, out_depth.reshape(1, -1))[0]  # [H*W, 3]
-    ruv, rz = refs_cameras.to(dtype=out_depth.dtype).project(points)  # [R, H*W, 2], [R, H*W]
-    inside = (rz > 0) & (ruv[..., 0] >= 0) & (ruv[..., 0] <= refs_cameras.width) \
-        & (ruv[..., 1] >= 0) & (ruv[..., 1] <= refs_cameras.height)
+    inside = refs_cameras.to(dtype=out_depth.dtype).sees(points)  # [R, H*W]
     return inside.sum(0).reshape(h, w).cpu().numpy()
 
 

@@ -143,10 +143,7 @@ def frustum_overlap(camera, near: float, far: float, refs) -> torch.Tensor:
     cam = camera.to(dtype=torch.float64)
     points = torch.cat([cam.unproject(uv, torch.full(uv.shape[:2], float(d), dtype=torch.float64))[0]
                         for d in depths])  # [D*G*G, 3]
-    ruv, rz = refs.to(dtype=torch.float64).project(points)  # [N, P, 2], [N, P]
-    inside = (rz > 0) & (ruv[..., 0] >= 0) & (ruv[..., 0] <= refs.width) & (ruv[..., 1] >= 0) \
-        & (ruv[..., 1] <= refs.height)
-    return inside.double().mean(-1)
+    return refs.to(dtype=torch.float64).sees(points).double().mean(-1)  # [N]
 
 
 def patch_overlap_rule(weight: float) -> None:

@@ -202,6 +202,13 @@ class Cameras:
         uv = pix[..., :2] / _safe(depth)[..., None]
         return uv, depth
 
+    def sees(self, points: Tensor) -> Tensor:
+        """[N, P] True where a world point (``points`` as in :meth:`project`) lies in front of a camera and inside
+        its image."""
+        uv, depth = self.project(points)
+        return (depth > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= self.width) & (uv[..., 1] >= 0) \
+            & (uv[..., 1] <= self.height)
+
     def unproject(self, uv: Tensor, depth: Tensor) -> Tensor:
         """Inverse of :meth:`project`: pixels uv [N, P, 2] at camera depth z [N, P] -> world points [N, P, 3]."""
         check_shape("uv", uv, (len(self), None, 2))
