@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -11,6 +12,7 @@ import torch
 
 from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.scenes import SceneError, load_scene, write_blender_transforms, write_nerfstudio_transforms
+from insertnerf_cli.scenes.images import undistort
 from scene_fixtures import (HEIGHT, WIDTH, known_scene, look_at, pattern_image, write_blender, write_colmap,
                             write_images, write_nerfstudio)
 
@@ -216,6 +218,33 @@ def test_colmap_simple_radial_is_undistorted_and_fov_refused(tmp_path: Path, kno
     rec.write_binary(str(model))
     with pytest.raises(SceneError, match="image_undistorter"):
         load_scene(root)
+
+
+def test_pincushion_is_undistorted_onto_a_zoomed_camera_without_blank_corners(tmp_path: Path, known) -> None:
+    """COLMAP's default SIMPLE_RADIAL with k > 0: keeping K would leave black corners that a reference view lends
+    as black surfaces; the loaded camera zooms just enough that every pixel has a source, and points land on it."""
+    import pycolmap
+
+    root = write_colmap(tmp_path, known)
+    model = root / "sparse" / "0"
+    rec = pycolmap.Reconstruction(str(model))
+    cam = pycolmap.Camera(camera_id=1, model="SIMPLE_RADIAL", width=WIDTH, height=HEIGHT,
+                          params=[30.0, WIDTH / 2, HEIGHT / 2, 0.3])
+    rec.cameras[1] = cam
+    rec.write_binary(str(model))
+    point = np.array([0.3, -0.2, 1.0])
+    xy = cam.img_from_cam(point[None])[0]
+    cv2.imwrite(str(root / "images" / known.names[0]), dot_image(xy))
+    cv2.imwrite(str(root / "images" / known.names[1]), np.full((HEIGHT, WIDTH, 3), 128, np.uint8))
+    scene = load_scene(root)
+    zoom = scene.distortion[0].zoom
+    K = scene.cameras.K[0].numpy()
+    assert 1.02 < zoom < 1.5 and np.isclose(K[0, 0], 30.0 * zoom) and np.isclose(K[0, 2], WIDTH / 2)
+    np.testing.assert_allclose(dot_centre(scene.load_image(0)), K[:2, :2] @ point[:2] + K[:2, 2], atol=0.75)
+    grey = np.full((HEIGHT, WIDTH, 3), 0.5, np.float32)
+    assert scene.load_image(1).min() > 0.45  # no black corner
+    photo_K = np.array([[30.0, 0, WIDTH / 2], [0, 30.0, HEIGHT / 2], [0, 0, 1]])
+    assert undistort(grey, photo_K, replace(scene.distortion[1], zoom=1.0)).min() < 0.05  # K kept: black corners
 
 
 def test_our_keys_depth_layout_and_bounds_are_read(tmp_path: Path, known) -> None:

@@ -85,7 +85,7 @@ class Scene:
         """Image ``index`` as float32 RGB [H, W, 3] in [0, 1], resized to height x width if given."""
         img = read_rgb(self.image_paths[index], self.background)
         if self.distortion is not None and self.distortion[index] is not None:
-            # Undistort at the file's own resolution, where K is the common-size K scaled to the file.
+            # Undistort at the file's own resolution, where K (the undistorted camera) is scaled to the file.
             K = self.cameras.rescale(img.shape[0], img.shape[1]).K[index].cpu().numpy()
             img = undistort(img, K, self.distortion[index])
         if img.shape[:2] != (self.cameras.height, self.cameras.width):

@@ -2,8 +2,9 @@
 
 Read with ``pycolmap.Reconstruction``. Registered images only, sorted by name. Poses are COLMAP's
 world-to-camera (OpenCV axes). Pinhole models are used as they are; radial/OpenCV/fisheye models are
-undistorted when images load (K unchanged); other models are refused. Near/far come from the 0.1/99.9
-percentiles of the depths of the points each image observes.
+undistorted when images load (focal lengths zoomed just enough to leave no blank corner, as COLMAP's undistorter
+crops); other models are refused. Near/far come from the 0.1/99.9 percentiles of the depths of the points each
+image observes.
 """
 from __future__ import annotations
 

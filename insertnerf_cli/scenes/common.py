@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -17,7 +17,7 @@ from ..cameras import Cameras
 from ..errors import SceneError
 from .base import Layout, Scene
 from .geometry import bounds_from_depths, bounds_from_geometry, detect_layout
-from .images import Distortion, image_size
+from .images import Distortion, blank_free_zoom, image_size
 
 # Two sizes share an aspect ratio when rescaling one to the other moves its height by at most this many pixels.
 ASPECT_TOLERANCE_PX = 1.0
@@ -187,12 +187,28 @@ def _check_bounds(views: ReadViews, near: Tensor, far: Tensor, given: bool) -> N
                      f"they must satisfy 0 < near < far <= {MAX_COORD:g}; correct the file or re-export the scene")
 
 
+def undistorted_cameras(cameras: Cameras, distortion: list[Distortion | None] | None
+                        ) -> tuple[Cameras, list[Distortion | None] | None]:
+    """The pinhole cameras the undistorted images will have: each distorted view zoomed (focal lengths only) just
+    enough that its undistorted image has a source pixel everywhere; ``distortion`` with those zooms recorded."""
+    if distortion is None:
+        return cameras, None
+    K = cameras.K.clone()  # [N, 3, 3]
+    zoomed: list[Distortion | None] = []
+    for i, d in enumerate(distortion):
+        if d is not None:
+            d = replace(d, zoom=blank_free_zoom(K[i].numpy(), cameras.height, cameras.width, d))
+            K[i, :2, :2] *= d.zoom
+        zoomed.append(d)
+    return Cameras(K, cameras.c2w, cameras.height, cameras.width), zoomed
+
+
 def assemble(views: ReadViews, background: tuple[float, float, float]) -> Scene:
     """Check the views and build the Scene: common size, bounds (format > points > geometry), layout."""
     if not views.paths:
         raise SceneError(f"{views.root}: the {views.format} scene lists no images")
     check_views(views)
-    cameras = unify_sizes(views)
+    cameras, distortion = undistorted_cameras(unify_sizes(views), views.distortion)
     layout = views.layout or detect_layout(cameras)
     given = views.near is not None and views.far is not None
     if given:
@@ -204,4 +220,4 @@ def assemble(views: ReadViews, background: tuple[float, float, float]) -> Scene:
     _check_bounds(views, near, far, given)
     return Scene(root=views.root, cameras=cameras, image_paths=views.paths, near=near, far=far,
                  splits=views.splits, layout=layout, format=views.format, background=background,
-                 depth_paths=views.depth_paths, depth_scale=views.depth_scale, distortion=views.distortion)
+                 depth_paths=views.depth_paths, depth_scale=views.depth_scale, distortion=distortion)

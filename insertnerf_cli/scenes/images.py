@@ -26,15 +26,19 @@ MAX_PIXELS = 1 << 28  # 268 megapixels: past any photo this tool renders from; m
 
 @dataclass(frozen=True)
 class Distortion:
-    """Lens distortion of one view, removed when its image is loaded (the pinhole K stays the same).
+    """Lens distortion of one view, removed when its image is loaded.
 
     Attributes:
         model: "opencv" (cv2.undistort order k1, k2, p1, p2[, k3[, k4, k5, k6]]) or "fisheye" (k1..k4).
         coeffs: the coefficients; they act on normalised image coordinates, so they hold at any image size.
+        zoom: the undistorted pinhole camera's focal lengths over the photo's (principal point and size kept):
+            above 1 where the undistorted image would otherwise have corners with no source pixel
+            (see :func:`blank_free_zoom`), which would read as black surfaces in a reference view.
     """
 
     model: Literal["opencv", "fisheye"]
     coeffs: tuple[float, ...]
+    zoom: float = 1.0
 
 
 def is_image(path: Path) -> bool:
@@ -184,14 +188,77 @@ def resize(img: np.ndarray, height: int, width: int) -> np.ndarray:
     return out.reshape(height, width, *img.shape[2:])
 
 
-def undistort(img: np.ndarray, K: np.ndarray, distortion: Distortion) -> np.ndarray:
-    """Remove lens distortion from [H, W, C] whose camera matrix at this size is K [3, 3]; K stays the camera.
-
-    Pixels that fall outside the distorted image come out black, as COLMAP's undistorter leaves them.
-    """
-    coeffs = np.asarray(distortion.coeffs, dtype=np.float64)
+def _opencv_K(K: np.ndarray) -> np.ndarray:
+    """Our K [3, 3] (pixel centres at +0.5, as COLMAP) as OpenCV's (centres at integers)."""
     K = np.array(K, dtype=np.float64)
-    K[:2, 2] -= 0.5  # OpenCV puts pixel centres at integers, we (and COLMAP) at +0.5
+    K[:2, 2] -= 0.5
+    return K
+
+
+def _photo_K(K: np.ndarray, zoom: float) -> np.ndarray:
+    """The photo's camera matrix from the undistorted camera's K [3, 3] (focal lengths divided by ``zoom``)."""
+    K = np.array(K, dtype=np.float64)
+    K[:2, :2] /= zoom
+    return K
+
+
+def undistort(img: np.ndarray, K: np.ndarray, distortion: Distortion) -> np.ndarray:
+    """Remove lens distortion from [H, W, C]; K [3, 3] is the undistorted camera at this size (the photo's focal
+    lengths times ``distortion.zoom``). Pixels whose source falls outside the photo come out black."""
+    coeffs = np.asarray(distortion.coeffs, dtype=np.float64)
+    K_out, K_photo = _opencv_K(K), _opencv_K(_photo_K(K, distortion.zoom))
     if distortion.model == "fisheye":
-        return cv2.fisheye.undistortImage(img, K, coeffs[:4], Knew=K).reshape(img.shape)
-    return cv2.undistort(img, K, coeffs, newCameraMatrix=K).reshape(img.shape)
+        return cv2.fisheye.undistortImage(img, K_photo, coeffs[:4], Knew=K_out).reshape(img.shape)
+    return cv2.undistort(img, K_photo, coeffs, newCameraMatrix=K_out).reshape(img.shape)
+
+
+_BORDER_SAMPLES = 64  # per side: dense enough that a bulge between two samples stays under a tenth of a pixel
+_MAX_ZOOM = 4.0  # a lens needing more is a fisheye past what a pinhole image can hold; leave its corners blank
+
+
+def _border_pixels(height: int, width: int) -> np.ndarray:
+    """[4 * _BORDER_SAMPLES, 2] centres of the outermost pixels (our convention, +0.5), corners included."""
+    xs = np.linspace(0.5, width - 0.5, _BORDER_SAMPLES)
+    ys = np.linspace(0.5, height - 0.5, _BORDER_SAMPLES)
+    return np.concatenate([np.stack([xs, np.full_like(xs, 0.5)], 1), np.stack([xs, np.full_like(xs, height - 0.5)], 1),
+                           np.stack([np.full_like(ys, 0.5), ys], 1), np.stack([np.full_like(ys, width - 0.5), ys], 1)])
+
+
+def _sources_inside(K: np.ndarray, height: int, width: int, distortion: Distortion, zoom: float) -> bool:
+    """True when every border pixel of the undistorted image (camera K [3, 3] at ``zoom``) has its source inside
+    the photo; the distortion models we read are monotonic in the radius there, so the inside follows."""
+    border = _border_pixels(height, width)
+    normalised = (border - K[:2, 2]) / np.diag(K)[:2]  # [P, 2] on the z = 1 plane
+    K_photo = _opencv_K(_photo_K(K, zoom))
+    coeffs = np.asarray(distortion.coeffs, dtype=np.float64)
+    if distortion.model == "fisheye":
+        source = cv2.fisheye.distortPoints(normalised[None], K_photo, coeffs[:4])[0]
+    else:
+        points = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)[:, None]  # [P, 1, 3]
+        source = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K_photo, coeffs)[0][:, 0]
+    tolerance = 1e-3  # pixels: an edge sample that lands on the photo's last pixel centre is inside
+    return bool(np.isfinite(source).all() and (source >= -tolerance).all()
+                and (source[:, 0] <= width - 1 + tolerance).all() and (source[:, 1] <= height - 1 + tolerance).all())
+
+
+def blank_free_zoom(K: np.ndarray, height: int, width: int, distortion: Distortion) -> float:
+    """The smallest zoom >= 1 (undistorted focal / photo focal) at which the undistorted height x width image has
+    a source pixel everywhere, as COLMAP's undistorter crops to; K [3, 3] is the photo's camera (zoom 1).
+
+    Barrel distortion needs none (1.0); pincushion (COLMAP's SIMPLE_RADIAL with k > 0) a few percent. Capped at
+    _MAX_ZOOM, past which the corners stay black.
+    """
+    K = np.asarray(K, dtype=np.float64)
+    grown = lambda zoom: _photo_K(K, 1.0 / zoom)  # noqa: E731 - the undistorted camera at this zoom
+    if _sources_inside(K, height, width, distortion, 1.0):
+        return 1.0
+    low, high = 1.0, 1.0
+    while not _sources_inside(grown(high), height, width, distortion, high):
+        low, high = high, 2.0 * high
+        if high > _MAX_ZOOM:
+            return _MAX_ZOOM
+    for _ in range(30):  # bisection to ~1e-9 of the zoom: far below a pixel
+        middle = 0.5 * (low + high)
+        inside = _sources_inside(grown(middle), height, width, distortion, middle)
+        low, high = (low, middle) if inside else (middle, high)
+    return high

@@ -1,9 +1,10 @@
 """nerfstudio / instant-ngp scenes: one ``transforms.json``.
 
 Intrinsics global or per frame; distortion (OPENCV k1 k2 k3 p1 p2, OPENCV_FISHEYE k1..k4) removed when images
-load, K unchanged; ``applied_transform`` (the rotation nerfstudio applied to the COLMAP world) is inverted so
-poses come back in the original world; without near/far, bounds come from ``ply_file_path`` points (as
-ns-process-data writes them); ``train_filenames``/``val_filenames``/``test_filenames`` become splits.
+load (focal lengths zoomed just enough to leave no blank corner); ``applied_transform`` (the rotation nerfstudio
+applied to the COLMAP world) is inverted so poses come back in the original world; without near/far, bounds
+come from ``ply_file_path`` points (as ns-process-data writes them); ``train_filenames``/``val_filenames``/
+``test_filenames`` become splits.
 """
 from __future__ import annotations
 
