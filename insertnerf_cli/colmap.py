@@ -25,6 +25,7 @@ import torch
 from .cameras import Cameras
 from .errors import UserError
 from .lock import lock_output, releases_output_locks
+from .matching import exhaustive_pairs, run_with_progress, sequential_pairs
 from .posecheck import MIN_PAIR_INLIERS, CheckLimits, PairMatches, PoseCheck, check_relative_poses
 from .poses_io import OWNER, InputImages, ModelArrays, check_output, read_inputs, staging_folder, write_scene
 
@@ -234,14 +235,19 @@ def _run_features_and_matching(inputs: InputImages, db_path: Path, options: Pose
     matcher = options.matcher
     if matcher == "auto":
         matcher = "exhaustive" if len(inputs.names) <= options.exhaustive_limit else "sequential"
-    stages.start("matching", f"{matcher} matcher")
+    n = len(inputs.names)
     matching = pycolmap.FeatureMatchingOptions(num_threads=threads)
     if matcher == "exhaustive":
-        pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+        pairs = exhaustive_pairs(n)
+        run = lambda: pycolmap.match_exhaustive(db_path, matching_options=matching,  # noqa: E731
+                                                device=pycolmap.Device.cpu)
     else:
+        pairs = sequential_pairs(n, options.sequential_overlap)
         pairing = pycolmap.SequentialPairingOptions(overlap=options.sequential_overlap, quadratic_overlap=True)
-        pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
-                                  device=pycolmap.Device.cpu)
+        run = lambda: pycolmap.match_sequential(db_path, matching_options=matching,  # noqa: E731
+                                                pairing_options=pairing, device=pycolmap.Device.cpu)
+    stages.start("matching", f"{matcher} matcher, {pairs} image pairs")
+    run_with_progress(run, db_path, lambda done: stages.tick(min(done, pairs), pairs, "image pairs matched"))
     with pycolmap.Database.open(db_path) as db:
         _, geometries = db.read_two_view_geometries()
         # The mapper ignores pairs with fewer inliers than this, so only those count as usefully matched.

@@ -19,6 +19,7 @@ from insertnerf_cli.cli import cli
 from insertnerf_cli.colmap import PosesOptions, estimate_poses
 from insertnerf_cli.commands.poses import default_out
 from insertnerf_cli.errors import UserError
+from insertnerf_cli.matching import exhaustive_pairs, pairs_written
 from insertnerf_cli.posecheck import CheckLimits, PairMatches, check_relative_poses, rotation_angle_deg
 from insertnerf_cli.poses_io import read_inputs
 from insertnerf_cli.preview import frustum_mesh, write_camera_frustums, write_point_cloud
@@ -274,6 +275,8 @@ def test_real_sfm_on_rendered_views(tmp_path: Path) -> None:
     scene_dir = tmp_path / "scene"
     for name in ("transforms.json", "sparse.ply", "cameras.ply", "colmap/database.db", "colmap/sparse/0/images.bin"):
         assert (scene_dir / name).is_file(), name
+    assert "exhaustive matcher, 28 image pairs" in result.output
+    assert pairs_written(scene_dir / "colmap" / "database.db") == exhaustive_pairs(8)  # what the progress counts
     _only_inputs_left(tmp_path, "photos", "scene")
 
     scene = load_scene(scene_dir)  # nerfstudio reader: OpenGL c2w in the file, OpenCV once loaded
