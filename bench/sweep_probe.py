@@ -13,9 +13,10 @@ them into the references and reads their colours. It prints, over all washed pix
   against chance (each reference's matches shifted along the sweep by its own offset: agreement on one depth
   lost). Far above chance means the references hold a photo-consistent surface for the structure.
 
---kept runs the same on the dark pixels the render gets right (the check that the sweep's geometry is sound).
+--pixels kept runs the same on the dark pixels the render gets right (the check that the sweep's geometry is
+sound); --pixels wrong on every pixel the render misses by more than WRONG in some channel, anywhere.
 
-    OMP_NUM_THREADS=2 python3 bench/sweep_probe.py --captures beer [--kept] [--checkpoint W] [--resolution 512]
+    OMP_NUM_THREADS=2 python3 bench/sweep_probe.py --captures beer [--pixels washed|kept|wrong] [--checkpoint W]
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ from insertnerf_cli.views import held_out_views  # noqa: E402
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 DARK, WASH, MATCH = 0.3, 0.2, 0.1  # luminance of a dark photo pixel, how much paler the render, colour tolerance
+WRONG = 0.25  # --pixels wrong: the render's error in some channel
 SWEEP = 192
 MIN_SEEN = 3
 LUMA = torch.tensor([0.299, 0.587, 0.114], dtype=torch.float64)
@@ -82,7 +84,7 @@ def sweep(images, cameras, camera, uv: torch.Tensor, near: float, far: float, re
             "chance": chance.to(torch.float64)}
 
 
-def probe(capture: Path, checkpoint: Path | None, views: int, kept: bool = False, resolution: int = 256) -> None:
+def probe(capture: Path, checkpoint: Path | None, views: int, pixels: str = "washed", resolution: int = 256) -> None:
     scene, _ = normalize_scene(load_scene(capture))
     held = held_out_views(scene)
     size = scene.size_for(resolution)
@@ -96,8 +98,10 @@ def probe(capture: Path, checkpoint: Path | None, views: int, kept: bool = False
         near, far = float(scene.near[index]), float(scene.far[index])
         out, refs = renderer.render(camera, near, far, held, views)
         render = out.rgb.double().cpu()
-        if kept:  # the check: dark pixels the render gets right, anywhere in the image
+        if pixels == "kept":  # the check: dark pixels the render gets right, anywhere in the image
             washed = (truth @ LUMA < DARK) & ((render - truth).abs().amax(-1) < MATCH)
+        elif pixels == "wrong":
+            washed = (render - truth).abs().amax(-1) > WRONG
         else:
             washed = (truth @ LUMA < DARK) & (render @ LUMA > truth @ LUMA + WASH)  # [H, W]
             washed[size[0] // 3:] = False  # the top third: where beer's railing and table legs are
@@ -125,7 +129,8 @@ def probe(capture: Path, checkpoint: Path | None, views: int, kept: bool = False
     truth, render, far, rendered = torch.cat(truths), torch.cat(renders), torch.cat(fars), torch.cat(depths)
     close = lambda colour: ((colour - truth).abs().amax(-1) < MATCH).double().mean().item() * 100  # noqa: E731
     n = len(truth)
-    what = "dark pixels rendered right" if kept else "washed pixels in the top third"
+    what = {"kept": "dark pixels rendered right", "wrong": f"pixels missed by > {WRONG}",
+            "washed": "washed pixels in the top third"}[pixels]
     print(f"{capture.name} | {views} views | {n} {what} of {len(held)} held-out views "
           f"(photo luminance {float((truth @ LUMA).mean()):.2f}, render {float((render @ LUMA).mean()):.2f})")
     as_is, mended = np.mean(scores, axis=0)
@@ -150,12 +155,13 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=REALDATA)
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--checkpoint", type=Path, default=None, help="default: the bundled fast generator")
-    parser.add_argument("--kept", action="store_true",
-                        help="the check: dark pixels the render gets right (within MATCH), anywhere in the image")
+    parser.add_argument("--pixels", choices=("washed", "kept", "wrong"), default="washed",
+                        help="washed: dark in the photo, pale in the top third of the render; kept: dark pixels the "
+                             "render gets right (the check); wrong: every pixel missed by more than WRONG")
     parser.add_argument("--resolution", type=int, default=256, help="long side of the render, as eval's")
     args = parser.parse_args()
     for name in args.captures.split(","):
-        probe(args.root / name, args.checkpoint, args.views, args.kept, args.resolution)
+        probe(args.root / name, args.checkpoint, args.views, args.pixels, args.resolution)
 
 
 if __name__ == "__main__":
