@@ -126,6 +126,8 @@ FILE_CASES = [
     ("llff-empty-file", write_llff, lambda r: (r / "poses_bounds.npy").write_bytes(b""), "poses_bounds.npy"),
     ("colmap-focal-zero", write_colmap_text, colmap_camera("1 PINHOLE 32 24 0 30 16 12"), "focal length"),
     ("colmap-focal-nan", write_colmap_text, colmap_camera("1 PINHOLE 32 24 nan 30 16 12"), "cannot read the COLMAP model"),
+    ("colmap-lens-beyond-use", write_colmap_text, colmap_camera("1 SIMPLE_RADIAL 32 24 30 16 12 1e30"),
+     "leaves 100 % of the undistorted image with no source pixel"),
     ("dtu-intrinsic-nan", write_dtu_mvsnet, cam_file("intrinsic\n30", "intrinsic\nnan"), "intrinsic"),
     ("dtu-extrinsic-text", write_dtu_mvsnet, cam_file("extrinsic\n", "extrinsic\nabc "), "cannot read DTU camera"),
     ("dtu-near-negative", write_dtu_mvsnet, lambda r: (r / "Cameras" / "00000000_cam.txt").write_text(

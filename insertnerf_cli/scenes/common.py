@@ -17,7 +17,7 @@ from ..cameras import Cameras
 from ..errors import SceneError
 from .base import Layout, Scene
 from .geometry import bounds_from_depths, bounds_from_geometry, detect_layout
-from .images import Distortion, blank_free_zoom, image_size
+from .images import MAX_ZOOM, Distortion, blank_free_zoom, image_size, source_share
 
 # Two sizes share an aspect ratio when rescaling one to the other moves its height by at most this many pixels.
 ASPECT_TOLERANCE_PX = 1.0
@@ -26,6 +26,8 @@ _NAMES_SHOWN = 3
 # Values beyond these come from broken files, and break the maths after them (K inversion, normalisation):
 MIN_FOCAL_PX = 1e-2  # a focal length of 0.01 pixels is a field of view of nearly 180 degrees
 MAX_COORD = 1e12  # world units: camera positions and far bounds (squares stay far from float64 overflow)
+# An undistorted image with less of it covered by its photo is a broken lens model, not a photo to render from.
+MIN_SOURCE_SHARE = 0.5
 
 
 def safe_path(root: Path, relative: str | os.PathLike, what: str = "path", source: Path | None = None) -> Path:
@@ -187,18 +189,29 @@ def _check_bounds(views: ReadViews, near: Tensor, far: Tensor, given: bool) -> N
                      f"they must satisfy 0 < near < far <= {MAX_COORD:g}; correct the file or re-export the scene")
 
 
-def undistorted_cameras(cameras: Cameras, distortion: list[Distortion | None] | None
-                        ) -> tuple[Cameras, list[Distortion | None] | None]:
+def undistorted_cameras(views: ReadViews, cameras: Cameras) -> tuple[Cameras, list[Distortion | None] | None]:
     """The pinhole cameras the undistorted images will have: each distorted view zoomed (focal lengths only) just
-    enough that its undistorted image has a source pixel everywhere; ``distortion`` with those zooms recorded."""
-    if distortion is None:
+    enough that its undistorted image has a source pixel everywhere; ``views.distortion`` with those zooms.
+
+    Raises:
+        SceneError: a lens that leaves most of the undistorted image without a source even at MAX_ZOOM (damaged
+            distortion coefficients, or a fisheye beyond what a pinhole image holds).
+    """
+    if views.distortion is None:
         return cameras, None
     K = cameras.K.clone()  # [N, 3, 3]
     zoomed: list[Distortion | None] = []
-    for i, d in enumerate(distortion):
+    for i, d in enumerate(views.distortion):
         if d is not None:
             d = replace(d, zoom=blank_free_zoom(K[i].numpy(), cameras.height, cameras.width, d))
             K[i, :2, :2] *= d.zoom
+            share = 1.0 if d.zoom < MAX_ZOOM else source_share(K[i].numpy(), cameras.height, cameras.width, d)
+            if share < MIN_SOURCE_SHARE:
+                coeffs = ", ".join(f"{c:g}" for c in d.coeffs)
+                raise SceneError(f"{views.source or views.root}: the lens distortion of {_view_name(views, i)} "
+                                 f"({d.model} {coeffs}) leaves {100 * (1 - share):.0f} % of the undistorted image "
+                                 f"with no source pixel; check the camera's distortion parameters, or undistort the "
+                                 "images first (`colmap image_undistorter`, or `insertnerf poses` on the photos)")
         zoomed.append(d)
     return Cameras(K, cameras.c2w, cameras.height, cameras.width), zoomed
 
@@ -208,7 +221,7 @@ def assemble(views: ReadViews, background: tuple[float, float, float]) -> Scene:
     if not views.paths:
         raise SceneError(f"{views.root}: the {views.format} scene lists no images")
     check_views(views)
-    cameras, distortion = undistorted_cameras(unify_sizes(views), views.distortion)
+    cameras, distortion = undistorted_cameras(views, unify_sizes(views))
     layout = views.layout or detect_layout(cameras)
     given = views.near is not None and views.far is not None
     if given:

@@ -213,7 +213,7 @@ def undistort(img: np.ndarray, K: np.ndarray, distortion: Distortion) -> np.ndar
 
 
 _BORDER_SAMPLES = 64  # per side: dense enough that a bulge between two samples stays under a tenth of a pixel
-_MAX_ZOOM = 4.0  # a lens needing more is a fisheye past what a pinhole image can hold; leave its corners blank
+MAX_ZOOM = 4.0  # a lens needing more is a fisheye past what a pinhole image can hold; leave its corners blank
 
 
 def _border_pixels(height: int, width: int) -> np.ndarray:
@@ -224,21 +224,38 @@ def _border_pixels(height: int, width: int) -> np.ndarray:
                            np.stack([np.full_like(ys, 0.5), ys], 1), np.stack([np.full_like(ys, width - 0.5), ys], 1)])
 
 
-def _sources_inside(K: np.ndarray, height: int, width: int, distortion: Distortion, zoom: float) -> bool:
-    """True when every border pixel of the undistorted image (camera K [3, 3] at ``zoom``) has its source inside
-    the photo; the distortion models we read are monotonic in the radius there, so the inside follows."""
-    border = _border_pixels(height, width)
-    normalised = (border - K[:2, 2]) / np.diag(K)[:2]  # [P, 2] on the z = 1 plane
+def _sources(K: np.ndarray, pixels: np.ndarray, distortion: Distortion, zoom: float) -> np.ndarray:
+    """Where in the photo (OpenCV pixel coordinates) pixels [P, 2] (ours, +0.5) of the undistorted image, camera
+    K [3, 3] at ``zoom``, take their colour from: [P, 2]."""
+    normalised = (pixels - K[:2, 2]) / np.diag(K)[:2]  # [P, 2] on the z = 1 plane
     K_photo = _opencv_K(_photo_K(K, zoom))
     coeffs = np.asarray(distortion.coeffs, dtype=np.float64)
     if distortion.model == "fisheye":
-        source = cv2.fisheye.distortPoints(normalised[None], K_photo, coeffs[:4])[0]
-    else:
-        points = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)[:, None]  # [P, 1, 3]
-        source = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K_photo, coeffs)[0][:, 0]
+        return cv2.fisheye.distortPoints(normalised[None], K_photo, coeffs[:4])[0]
+    points = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)[:, None]  # [P, 1, 3]
+    return cv2.projectPoints(points, np.zeros(3), np.zeros(3), K_photo, coeffs)[0][:, 0]
+
+
+def _inside(source: np.ndarray, height: int, width: int) -> np.ndarray:
+    """[P] True where source pixels [P, 2] (OpenCV coordinates) lie in a height x width photo."""
     tolerance = 1e-3  # pixels: an edge sample that lands on the photo's last pixel centre is inside
-    return bool(np.isfinite(source).all() and (source >= -tolerance).all()
-                and (source[:, 0] <= width - 1 + tolerance).all() and (source[:, 1] <= height - 1 + tolerance).all())
+    return np.isfinite(source).all(-1) & (source >= -tolerance).all(-1) \
+        & (source[:, 0] <= width - 1 + tolerance) & (source[:, 1] <= height - 1 + tolerance)
+
+
+def _sources_inside(K: np.ndarray, height: int, width: int, distortion: Distortion, zoom: float) -> bool:
+    """True when every border pixel of the undistorted image (camera K [3, 3] at ``zoom``) has its source inside
+    the photo; the distortion models we read are monotonic in the radius there, so the inside follows."""
+    return bool(_inside(_sources(K, _border_pixels(height, width), distortion, zoom), height, width).all())
+
+
+def source_share(K: np.ndarray, height: int, width: int, distortion: Distortion) -> float:
+    """The share of the undistorted image (camera K [3, 3], i.e. the photo's focal lengths times
+    ``distortion.zoom``) that has a source pixel in the photo, on a 24 x 24 grid of pixel centres."""
+    ys, xs = np.meshgrid(np.linspace(0.5, height - 0.5, 24), np.linspace(0.5, width - 0.5, 24), indexing="ij")
+    grid = np.stack([xs.ravel(), ys.ravel()], 1)
+    return float(_inside(_sources(np.asarray(K, dtype=np.float64), grid, distortion, distortion.zoom),
+                         height, width).mean())
 
 
 def blank_free_zoom(K: np.ndarray, height: int, width: int, distortion: Distortion) -> float:
@@ -246,7 +263,7 @@ def blank_free_zoom(K: np.ndarray, height: int, width: int, distortion: Distorti
     a source pixel everywhere, as COLMAP's undistorter crops to; K [3, 3] is the photo's camera (zoom 1).
 
     Barrel distortion needs none (1.0); pincushion (COLMAP's SIMPLE_RADIAL with k > 0) a few percent. Capped at
-    _MAX_ZOOM, past which the corners stay black.
+    MAX_ZOOM, past which the corners stay black.
     """
     K = np.asarray(K, dtype=np.float64)
     grown = lambda zoom: _photo_K(K, 1.0 / zoom)  # noqa: E731 - the undistorted camera at this zoom
@@ -255,8 +272,8 @@ def blank_free_zoom(K: np.ndarray, height: int, width: int, distortion: Distorti
     low, high = 1.0, 1.0
     while not _sources_inside(grown(high), height, width, distortion, high):
         low, high = high, 2.0 * high
-        if high > _MAX_ZOOM:
-            return _MAX_ZOOM
+        if high > MAX_ZOOM:
+            return MAX_ZOOM
     for _ in range(30):  # bisection to ~1e-9 of the zoom: far below a pixel
         middle = 0.5 * (low + high)
         inside = _sources_inside(grown(middle), height, width, distortion, middle)
