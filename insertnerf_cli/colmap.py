@@ -15,6 +15,7 @@ import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Callable, Iterator, Literal
 
@@ -239,13 +240,12 @@ def _run_features_and_matching(inputs: InputImages, db_path: Path, options: Pose
     matching = pycolmap.FeatureMatchingOptions(num_threads=threads)
     if matcher == "exhaustive":
         pairs = exhaustive_pairs(n)
-        run = lambda: pycolmap.match_exhaustive(db_path, matching_options=matching,  # noqa: E731
-                                                device=pycolmap.Device.cpu)
+        run = partial(pycolmap.match_exhaustive, db_path, matching_options=matching, device=pycolmap.Device.cpu)
     else:
         pairs = sequential_pairs(n, options.sequential_overlap)
         pairing = pycolmap.SequentialPairingOptions(overlap=options.sequential_overlap, quadratic_overlap=True)
-        run = lambda: pycolmap.match_sequential(db_path, matching_options=matching,  # noqa: E731
-                                                pairing_options=pairing, device=pycolmap.Device.cpu)
+        run = partial(pycolmap.match_sequential, db_path, matching_options=matching, pairing_options=pairing,
+                      device=pycolmap.Device.cpu)
     stages.start("matching", f"{matcher} matcher, {pairs} image pairs")
     run_with_progress(run, db_path, lambda done: stages.tick(min(done, pairs), pairs, "image pairs matched"))
     with pycolmap.Database.open(db_path) as db:
