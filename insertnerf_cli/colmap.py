@@ -15,7 +15,6 @@ import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from functools import partial
 from pathlib import Path
 from typing import Callable, Iterator, Literal
 
@@ -26,7 +25,7 @@ import torch
 from .cameras import Cameras
 from .errors import UserError
 from .lock import lock_output, releases_output_locks
-from .matching import exhaustive_pairs, run_with_progress, sequential_pairs
+from .matching import match
 from .posecheck import MIN_PAIR_INLIERS, CheckLimits, PairMatches, PoseCheck, check_relative_poses
 from .poses_io import OWNER, InputImages, ModelArrays, check_output, read_inputs, staging_folder, write_scene
 
@@ -49,7 +48,7 @@ class PosesOptions:
 
     Attributes:
         matcher: "exhaustive" (every pair), "sequential" (neighbours in name order, for video frames) or "auto"
-            (exhaustive up to ``exhaustive_limit`` images, sequential above).
+            (exhaustive up to ``exhaustive_limit`` images, sequential above, see ``exhaustive_fallback_limit``).
         max_image_size: long side, pixels, that SIFT sees (CPU SIFT memory grows with the image size).
         camera_model: COLMAP camera model fitted before undistortion (SIMPLE_RADIAL, RADIAL, OPENCV, PINHOLE).
         num_threads: CPU threads; 0 = every core this process may use.
@@ -59,6 +58,8 @@ class PosesOptions:
         allow_inconsistent: only warn when the pose check fails (else it is an error).
         check_pairs: at most this many image pairs are compared by the check (general pairs first).
         exhaustive_limit: the "auto" matcher's switch point.
+        exhaustive_fallback_limit: up to this many images, "auto" matches every pair after all when the
+            sequential matcher places under WARN_REGISTERED_FRACTION of them (photos not in video order).
         sequential_overlap: neighbours matched to each image by the sequential matcher.
         seed: random seed of the mapper.
     """
@@ -73,6 +74,7 @@ class PosesOptions:
     allow_inconsistent: bool = False
     check_pairs: int = 300
     exhaustive_limit: int = 100
+    exhaustive_fallback_limit: int = 300
     sequential_overlap: int = 10
     seed: int = 0
 
@@ -202,7 +204,7 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
         stages.done(f"{len(inputs.names)} images of {inputs.width}x{inputs.height}")
         work = tmp / "colmap"
         matcher = _run_features_and_matching(inputs, work / "database.db", options, stages)
-        rec, model_dir = _run_mapping(inputs, work, options, stages)
+        rec, model_dir, matcher = _map_or_match_every_pair(inputs, work, options, matcher, stages)
         check = _run_check(rec, work / "database.db", inputs, options, stages)
         stages.start("writing the scene", "undistorting to PINHOLE")
         undistorted = _undistort(model_dir, inputs.folder, tmp)
@@ -231,30 +233,46 @@ def _report_result(result: PosesResult, report: Report) -> None:
 def _run_features_and_matching(inputs: InputImages, db_path: Path, options: PosesOptions,
                                stages: _Stages) -> str:
     """SIFT features and matches into ``db_path``; returns the matcher used."""
-    threads = _num_threads(options.num_threads)
-    _extract(inputs, db_path, options, threads, stages)
+    _extract(inputs, db_path, options, _num_threads(options.num_threads), stages)
     matcher = options.matcher
     if matcher == "auto":
         matcher = "exhaustive" if len(inputs.names) <= options.exhaustive_limit else "sequential"
-    n = len(inputs.names)
-    matching = pycolmap.FeatureMatchingOptions(num_threads=threads)
-    if matcher == "exhaustive":
-        pairs = exhaustive_pairs(n)
-        run = partial(pycolmap.match_exhaustive, db_path, matching_options=matching, device=pycolmap.Device.cpu)
-    else:
-        pairs = sequential_pairs(n, options.sequential_overlap)
-        pairing = pycolmap.SequentialPairingOptions(overlap=options.sequential_overlap, quadratic_overlap=True)
-        run = partial(pycolmap.match_sequential, db_path, matching_options=matching, pairing_options=pairing,
-                      device=pycolmap.Device.cpu)
-    stages.start("matching", f"{matcher} matcher, {pairs} image pairs")
-    run_with_progress(run, db_path, lambda done: stages.tick(min(done, pairs), pairs, "image pairs matched"))
-    with pycolmap.Database.open(db_path) as db:
-        _, geometries = db.read_two_view_geometries()
-        # The mapper ignores pairs with fewer inliers than this, so only those count as usefully matched.
-        min_inliers = pycolmap.IncrementalPipelineOptions().min_num_matches
-        useful = sum(len(g.inlier_matches) >= min_inliers for g in geometries)
-        stages.done(f"{useful} of {db.num_matched_image_pairs()} image pairs share >= {min_inliers} verified matches")
+    _match(db_path, matcher, len(inputs.names), options, stages)
     return matcher
+
+
+def _match(db_path: Path, matcher: str, images: int, options: PosesOptions, stages: _Stages) -> None:
+    """One matching stage: COLMAP's matcher with progress, then how many pairs the mapper can use."""
+    stages.done(match(db_path, matcher, images, options.sequential_overlap, _num_threads(options.num_threads),
+                      lambda what: stages.start("matching", what),
+                      lambda done, pairs: stages.tick(done, pairs, "image pairs matched")))
+
+
+def _map_or_match_every_pair(inputs: InputImages, work: Path, options: PosesOptions, matcher: str,
+                             stages: _Stages) -> tuple["pycolmap.Reconstruction", Path, str]:
+    """Mapping, and the matcher behind the model. When "auto" chose the sequential matcher (more than
+    ``exhaustive_limit`` images) and it places under WARN_REGISTERED_FRACTION of them, the photos are not in video
+    order: up to ``exhaustive_fallback_limit`` images, every pair is matched (the sequential pairs are kept) and
+    mapping runs again."""
+    n = len(inputs.names)
+    fallback = options.matcher == "auto" and matcher == "sequential" and n <= options.exhaustive_fallback_limit
+    try:
+        rec, model_dir = _run_mapping(inputs, work, options, stages)
+    except UserError:
+        if not fallback:
+            raise
+        placed = f"fewer than {MIN_REGISTERED}"
+    else:
+        if not fallback or rec.num_reg_images() >= WARN_REGISTERED_FRACTION * n:
+            return rec, model_dir, matcher
+        placed = str(rec.num_reg_images())
+    stages.total += 2
+    stages.report(f"      sequential matching placed {placed} of {n} images: the photos are not in video order; "
+                  "matching every pair and mapping again")
+    shutil.rmtree(work / "mapping")
+    _match(work / "database.db", "exhaustive", n, options, stages)
+    rec, model_dir = _run_mapping(inputs, work, options, stages)
+    return rec, model_dir, "exhaustive"
 
 
 def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads: int, stages: _Stages) -> None:

@@ -28,14 +28,14 @@ def _writer(db_path: Path, rows: int, fail: bool = False):
         for i in range(rows):
             with sqlite3.connect(db_path) as db:
                 db.execute("INSERT INTO matches VALUES (?)", (i,))
-            time.sleep(0.01)
+            time.sleep(0.03)
         if fail:
             raise RuntimeError("matcher failed")
     return match
 
 
 def test_progress_counts_rows_while_the_matcher_runs(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setattr("insertnerf_cli.matching.POLL_S", 0.05)
+    monkeypatch.setattr("insertnerf_cli.matching.POLL_S", 0.1)
     db_path = tmp_path / "database.db"
     assert pairs_written(db_path) is None  # no database yet
     seen: list[int] = []

@@ -5,6 +5,7 @@ import importlib.util
 import math
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -294,3 +295,23 @@ def test_real_sfm_on_rendered_views(tmp_path: Path) -> None:
     with pytest.raises(UserError, match="--allow-inconsistent"):
         estimate_poses(tmp_path / "photos", tmp_path / "scene2", impossible, report=lambda line: None)
     _only_inputs_left(tmp_path, "photos", "scene")
+
+
+def test_auto_matches_every_pair_when_sequential_matching_fails(tmp_path: Path) -> None:
+    """Photos that are not in video order: with more than exhaustive_limit of them, "auto" matches neighbours in
+    name order first; when that places too few, it matches every pair and maps again (asked for "sequential"
+    explicitly, the same photos fail)."""
+    truth = _bench_scene().render_scene(views=12, size=200, arc_deg=150.0)
+    order = [0, 6, 1, 7, 2, 8, 3, 9, 4, 10, 5, 11]  # consecutive names 75 degrees apart
+    (tmp_path / "photos").mkdir()
+    for name_index, view in enumerate(order):
+        cv2.imwrite(str(tmp_path / "photos" / f"p{name_index:02d}.png"), truth.images[view][..., ::-1])
+    lines: list[str] = []
+    small = PosesOptions(exhaustive_limit=4, sequential_overlap=1)
+    result = estimate_poses(tmp_path / "photos", tmp_path / "scene", small, report=lines.append)
+    assert result.matcher == "exhaustive" and len(result.registered) == 12
+    assert any("not in video order; matching every pair" in line for line in lines)
+    assert any("exhaustive matcher, 66 image pairs (55 not matched yet)" in line for line in lines)
+    with pytest.raises(UserError, match="could be registered|could not build"):
+        estimate_poses(tmp_path / "photos", tmp_path / "scene2", replace(small, matcher="sequential"),
+                       report=lambda line: None)
