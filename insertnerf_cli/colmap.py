@@ -303,7 +303,7 @@ def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
 
     def on_image() -> None:
         registered[0] += 1
-        stages.tick(min(registered[0], n), n, "images registered")
+        stages.tick(min(registered[0], n), n, "images registered so far, in all models (the largest is kept)")
 
     mapping = pycolmap.IncrementalPipelineOptions(num_threads=_num_threads(options.num_threads),
                                                   random_seed=options.seed, min_model_size=MIN_REGISTERED)
