@@ -361,6 +361,15 @@ def case_poses_ctrl_c_during_work(w: Workspace) -> Plan:
 
 
 @case
+def case_poses_ctrl_c_during_matching(w: Workspace) -> Plan:
+    """COLMAP's matcher answers Ctrl-C in the thread that called it; run in a worker thread it aborted the process
+    (exit -6 and a C++ stack trace), the progress counter beside it must not change that."""
+    photos = w.photos()
+    return Plan([Step(poses_args(photos, w.dir / "scene", "--matcher", "exhaustive"), "interrupt",
+                      signal=(INT, "[3/6]", 0.1))], inputs=[photos])
+
+
+@case
 def case_eval_ctrl_c_during_start_up(w: Workspace) -> Plan:
     scene = w.scene()
     return Plan([Step(eval_args(w.fx, scene), "interrupt", signal=(INT, "", 0.4))], inputs=[scene])

@@ -1,8 +1,8 @@
 """Progress for COLMAP's feature matching, which reports nothing while it runs (a minute for 100 photos).
 
 pycolmap's matchers release the GIL and write each matched image pair into the database (WAL journal) as they go,
-so the matcher runs in a worker thread while this thread has the rows of its ``matches`` table counted. The count
-runs in a child process: COLMAP's SQLite is linked into pycolmap, and a second SQLite library (Python's) opening
+so while the matcher runs a helper thread has the rows of its ``matches`` table counted. The count runs in a child
+process: COLMAP's SQLite is linked into pycolmap, and a second SQLite library (Python's) opening
 the same file in this process would release COLMAP's POSIX file locks whenever it closes the file
 (sqlite.org/howtocorrupt.html, 2.2.1; an in-process reader did read "database disk image is malformed" here).
 """
@@ -49,33 +49,27 @@ def pairs_written(db_path: Path) -> int | None:
 
 
 def run_with_progress(match: Callable[[], None], db_path: Path, tick: Callable[[int], None]) -> None:
-    """Run ``match`` (a pycolmap matcher call writing into ``db_path``) in a worker thread and call ``tick`` with
-    the number of pairs written so far about every POLL_S seconds; re-raise what the matcher raised.
+    """Run ``match`` (a pycolmap matcher call writing into ``db_path``) while a helper thread has the pairs written
+    so far counted every POLL_S seconds and passed to ``tick``.
 
-    Ctrl-C cannot stop COLMAP's matcher midway (as when it ran in this thread): the interrupt is raised once the
-    matcher has finished, so the caller's cleanup never races with COLMAP writing the database.
+    The matcher itself stays in this thread: pycolmap answers Ctrl-C there (a clean KeyboardInterrupt within
+    seconds); run in a worker thread instead, COLMAP aborted the whole process on Ctrl-C.
     """
-    failure: list[BaseException] = []
+    stop = threading.Event()
 
-    def worker() -> None:
-        try:
-            match()
-        except BaseException as err:  # noqa: BLE001 - handed to the calling thread unchanged
-            failure.append(err)
-
-    thread = threading.Thread(target=worker, name="colmap-matching", daemon=True)
-    thread.start()
-    try:
-        while thread.is_alive():
-            thread.join(POLL_S)
+    def poll() -> None:
+        while not stop.wait(POLL_S):
             done = pairs_written(db_path)
-            if done is not None and thread.is_alive():
+            if done is not None and not stop.is_set():
                 tick(done)
-    except KeyboardInterrupt:
-        thread.join()
-        raise
-    if failure:
-        raise failure[0]
+
+    poller = threading.Thread(target=poll, name="matching-progress", daemon=True)
+    poller.start()
+    try:
+        match()
+    finally:
+        stop.set()
+        poller.join()
 
 
 def match(db_path: Path, matcher: str, images: int, overlap: int, threads: int, start: Callable[[str], None],
