@@ -203,9 +203,10 @@ def undistorted_cameras(views: ReadViews, cameras: Cameras) -> tuple[Cameras, li
     zoomed: list[Distortion | None] = []
     for i, d in enumerate(views.distortion):
         if d is not None:
-            d = replace(d, zoom=blank_free_zoom(K[i].numpy(), cameras.height, cameras.width, d))
+            photo_K = K[i].numpy().copy()  # K[i] is scaled below
+            d = replace(d, zoom=blank_free_zoom(photo_K, cameras.height, cameras.width, d))
+            share = 1.0 if d.zoom < MAX_ZOOM else source_share(photo_K, cameras.height, cameras.width, d)
             K[i, :2, :2] *= d.zoom
-            share = 1.0 if d.zoom < MAX_ZOOM else source_share(K[i].numpy(), cameras.height, cameras.width, d)
             if share < MIN_SOURCE_SHARE:
                 coeffs = ", ".join(f"{c:g}" for c in d.coeffs)
                 raise SceneError(f"{views.source or views.root}: the lens distortion of {_view_name(views, i)} "

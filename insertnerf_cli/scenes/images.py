@@ -224,16 +224,16 @@ def _border_pixels(height: int, width: int) -> np.ndarray:
                            np.stack([np.full_like(ys, 0.5), ys], 1), np.stack([np.full_like(ys, width - 0.5), ys], 1)])
 
 
-def _sources(K: np.ndarray, pixels: np.ndarray, distortion: Distortion, zoom: float) -> np.ndarray:
-    """Where in the photo (OpenCV pixel coordinates) pixels [P, 2] (ours, +0.5) of the undistorted image, camera
-    K [3, 3] at ``zoom``, take their colour from: [P, 2]."""
-    normalised = (pixels - K[:2, 2]) / np.diag(K)[:2]  # [P, 2] on the z = 1 plane
-    K_photo = _opencv_K(_photo_K(K, zoom))
+def _sources(K_photo: np.ndarray, pixels: np.ndarray, distortion: Distortion, zoom: float) -> np.ndarray:
+    """Where in the photo (OpenCV pixel coordinates) pixels [P, 2] (ours, +0.5) of the undistorted image take their
+    colour from, [P, 2]; the photo's camera is K_photo [3, 3], the undistorted one the same with its focal lengths
+    times ``zoom``."""
+    normalised = (pixels - K_photo[:2, 2]) / (zoom * np.diag(K_photo)[:2])  # [P, 2] on the z = 1 plane
     coeffs = np.asarray(distortion.coeffs, dtype=np.float64)
     if distortion.model == "fisheye":
-        return cv2.fisheye.distortPoints(normalised[None], K_photo, coeffs[:4])[0]
+        return cv2.fisheye.distortPoints(normalised[None], _opencv_K(K_photo), coeffs[:4])[0]
     points = np.concatenate([normalised, np.ones((len(normalised), 1))], 1)[:, None]  # [P, 1, 3]
-    return cv2.projectPoints(points, np.zeros(3), np.zeros(3), K_photo, coeffs)[0][:, 0]
+    return cv2.projectPoints(points, np.zeros(3), np.zeros(3), _opencv_K(K_photo), coeffs)[0][:, 0]
 
 
 def _inside(source: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -243,18 +243,19 @@ def _inside(source: np.ndarray, height: int, width: int) -> np.ndarray:
         & (source[:, 0] <= width - 1 + tolerance) & (source[:, 1] <= height - 1 + tolerance)
 
 
-def _sources_inside(K: np.ndarray, height: int, width: int, distortion: Distortion, zoom: float) -> bool:
-    """True when every border pixel of the undistorted image (camera K [3, 3] at ``zoom``) has its source inside
-    the photo; the distortion models we read are monotonic in the radius there, so the inside follows."""
-    return bool(_inside(_sources(K, _border_pixels(height, width), distortion, zoom), height, width).all())
+def _sources_inside(K_photo: np.ndarray, height: int, width: int, distortion: Distortion, zoom: float) -> bool:
+    """True when every border pixel of the undistorted image (the photo's camera K_photo [3, 3] zoomed by ``zoom``)
+    has its source inside the photo; the distortion models we read are monotonic in the radius there, so the
+    inside follows."""
+    return bool(_inside(_sources(K_photo, _border_pixels(height, width), distortion, zoom), height, width).all())
 
 
-def source_share(K: np.ndarray, height: int, width: int, distortion: Distortion) -> float:
-    """The share of the undistorted image (camera K [3, 3], i.e. the photo's focal lengths times
-    ``distortion.zoom``) that has a source pixel in the photo, on a 24 x 24 grid of pixel centres."""
+def source_share(K_photo: np.ndarray, height: int, width: int, distortion: Distortion) -> float:
+    """The share of the undistorted image (the photo's camera K_photo [3, 3] zoomed by ``distortion.zoom``) that has
+    a source pixel in the photo, on a 24 x 24 grid of pixel centres."""
     ys, xs = np.meshgrid(np.linspace(0.5, height - 0.5, 24), np.linspace(0.5, width - 0.5, 24), indexing="ij")
     grid = np.stack([xs.ravel(), ys.ravel()], 1)
-    return float(_inside(_sources(np.asarray(K, dtype=np.float64), grid, distortion, distortion.zoom),
+    return float(_inside(_sources(np.asarray(K_photo, dtype=np.float64), grid, distortion, distortion.zoom),
                          height, width).mean())
 
 
@@ -266,16 +267,15 @@ def blank_free_zoom(K: np.ndarray, height: int, width: int, distortion: Distorti
     MAX_ZOOM, past which the corners stay black.
     """
     K = np.asarray(K, dtype=np.float64)
-    grown = lambda zoom: _photo_K(K, 1.0 / zoom)  # noqa: E731 - the undistorted camera at this zoom
     if _sources_inside(K, height, width, distortion, 1.0):
         return 1.0
-    low, high = 1.0, 1.0
-    while not _sources_inside(grown(high), height, width, distortion, high):
+    low, high = 1.0, 2.0
+    while not _sources_inside(K, height, width, distortion, high):
         low, high = high, 2.0 * high
         if high > MAX_ZOOM:
             return MAX_ZOOM
     for _ in range(30):  # bisection to ~1e-9 of the zoom: far below a pixel
         middle = 0.5 * (low + high)
-        inside = _sources_inside(grown(middle), height, width, distortion, middle)
+        inside = _sources_inside(K, height, width, distortion, middle)
         low, high = (low, middle) if inside else (middle, high)
     return high
