@@ -44,8 +44,8 @@ LUMA = torch.tensor([0.299, 0.587, 0.114], dtype=torch.float64)
 
 def reference_colours(images: torch.Tensor, cameras, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Colours [R, P, 3] of world points [P, 3] in reference images [R, H, W, 3], and [R, P] which refs see them."""
-    uv, _ = cameras.project(points)
-    seen = cameras.sees(points)
+    uv, depth = cameras.project(points)
+    seen = cameras.in_image(uv, depth)
     h, w = images.shape[1:3]
     grid = torch.stack([uv[..., 0] / w * 2 - 1, uv[..., 1] / h * 2 - 1], -1)[:, :, None]  # [R, P, 1, 2]
     colours = F.grid_sample(images.permute(0, 3, 1, 2), grid, mode="bilinear", align_corners=False)  # [R, 3, P, 1]

@@ -205,7 +205,11 @@ class Cameras:
     def sees(self, points: Tensor) -> Tensor:
         """[N, P] True where a world point (``points`` as in :meth:`project`) lies in front of a camera and inside
         its image."""
-        uv, depth = self.project(points)
+        return self.in_image(*self.project(points))
+
+    def in_image(self, uv: Tensor, depth: Tensor) -> Tensor:
+        """[N, P] True where a projection (uv [N, P, 2], depth [N, P] from :meth:`project`) is in front of the
+        camera and inside its image."""
         return (depth > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= self.width) & (uv[..., 1] >= 0) \
             & (uv[..., 1] <= self.height)
 
