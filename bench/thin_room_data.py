@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -29,11 +30,6 @@ ROOM_SHARE = (0.8, 0.1, 0.1)  # room, sky, street
 # Scene units; the subject has radius 1, and beer's railing and table stand several times the can's height.
 RAILING_HEIGHT = (1.2, 3.0)
 FRAME_SCALE = (1.5, 4.0)  # rods' frames have half-extents 0.2-0.5: tables and chairs 0.6-4 units across
-
-
-def _yaw(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def add_thin_furniture(b: Builder, rng: np.random.Generator, room: enclosures.Enclosure) -> None:
@@ -48,7 +44,7 @@ def add_thin_furniture(b: Builder, rng: np.random.Generator, room: enclosures.En
             shape = geometry.fence(rng)  # along x, one unit long, base at z = 0
             height = float(np.ptp(shape.mesh.vertices[:, 2]))
             scale = min(rng.uniform(*RAILING_HEIGHT) / height, 0.8 * float(room.size.min()))
-            rotation = _yaw(math.pi / 2 if wall < 2 else 0.0)  # run along the wall
+            rotation = Rotation.from_euler("z", math.pi / 2 if wall < 2 else 0.0).as_matrix()  # along the wall
             b.add(shape, rotation, np.array([xy[0], xy[1], room.floor]), float(scale),
                   material=b.material(enclosures.random_material(rng, glossy=False)))
         else:
