@@ -4,7 +4,9 @@ coarse weights and shading are patched in this process only.
 
 A variant is alpha:tau:k[:blur[:mode[:blend[:fine]]]]: the coarse weights become (1 - alpha) * learned +
 alpha * softmax_S(-cost / tau) ("mix") or learned * softmax_S(-cost / tau) ** alpha ("product"), the cost of a
-sample being the variance of the reference colours (box-blurred over 2 blur + 1 pixels) over its k views nearest in
+sample being the variance of the reference colours (box-blurred over 2 blur + 1 pixels; a negative blur -r: each
+image locally contrast-normalised over 2r + 1 pixels, (I - mean) / (std + LCN_FLOOR) per channel, a gain- and
+offset-free cost like NCC's, whose tau is on another scale) over its k views nearest in
 angle; ``fine`` > 0 multiplies the fine weights by softmax_S(-cost / tau) ** fine; ``blend`` scales the learned
 share of the network's own colour (0: the reference colour alone). Scored with eval's library call on the dev
 captures like bench/views_ab.py (the library's version: export copies with scripts/export_weights.py
@@ -34,6 +36,7 @@ from insertnerf_cli.sampling import stratified_samples  # noqa: E402
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 _learned = InsertNeRF.coarse_weights
+LCN_FLOOR = 0.02  # colour std below which a patch counts as flat (noise is not amplified into texture)
 SETTINGS = {"alpha": 0.0, "tau": 0.05, "k": 4, "blur": 1, "mode": "mix", "blend": 1.0, "fine": 0.0}
 _shade = InsertNeRF.shade
 
@@ -55,14 +58,25 @@ def shade(self, head, seen, rays, samples, reference, backdrop, temperature=0.0)
 
 
 def blurred(encoded, radius: int):
-    if radius <= 0:
+    if radius == 0:
         return encoded.images
     key = ("blur", radius, id(encoded.images))
     cache = SETTINGS.setdefault("_cache", {})
     if key not in cache:
         cache.clear()
-        cache[key] = F.avg_pool2d(encoded.images, 2 * radius + 1, stride=1, padding=radius, count_include_pad=False)
+        cache[key] = box(encoded.images, radius) if radius > 0 else normalised(encoded.images, -radius)
     return cache[key]
+
+
+def box(images, radius: int):
+    return F.avg_pool2d(images, 2 * radius + 1, stride=1, padding=radius, count_include_pad=False)
+
+
+def normalised(images, radius: int):
+    """Local contrast normalisation per channel over (2 radius + 1)^2 pixels: a view's gain and offset gone."""
+    mean = box(images, radius)
+    std = (box(images * images, radius) - mean * mean).clamp(min=0.0).sqrt()
+    return (images - mean) / (std + LCN_FLOOR)
 
 
 def photo_cost(self, encoded, rays, samples):
