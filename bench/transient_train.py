@@ -80,6 +80,8 @@ def main() -> None:
     seed = int(args[args.index("--seed") + 1]) if "--seed" in args else 0
     SETTINGS.update(share=share, generator=torch.Generator().manual_seed(10_000 + seed))
     batches.make_step_batch = make_step_batch
+    print(f"transient_train: a shadow or blob in {share:.0%} of the source views (seed {seed})", file=sys.stderr,
+          flush=True)
     sys.argv = ["insertnerf", "train", *args]
     cli.main()
 

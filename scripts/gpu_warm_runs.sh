@@ -6,7 +6,8 @@
 #   python3 -m pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl && export PYTHONPATH=/tmp/site
 #   bash scripts/gpu_warm_runs.sh cuda auto 1      # DEVICE, TRAIN_MINUTES (auto: until END_AT), SCALE of scene counts
 # RAYS=16384 (environment) for 5x the rays per second of the 4,096 that ran (docs/training-on-gpu.md).
-# SEED_SHIFT=N adds N to every synth seed (a fresh set); RUN_SPECS="NAME:FAST|FULL:LR:SEED ..." picks the runs.
+# SEED_SHIFT=N adds N to every synth seed (a fresh set); RUN_SPECS="NAME:FAST|FULL:LR:SEED[:SHARE] ..." picks the runs
+# (SHARE: train through bench/transient_train.py with transients in that share of the source views, round 15).
 # MORE=M (a second call on the still-warm machine): resume every run of the first call for M more minutes, pack again.
 # .whl holds trimesh and embreex for the GPU machine's Python (synth needs them; docs/training-on-gpu.md).
 set -u
@@ -18,6 +19,9 @@ RUNS=$(for r in $RUN_SPECS; do echo -n "${r%%:*} "; done)
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 PY=${PY:-python3}
 ins() { $PY -c "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli import main; main()" "$@"; }
+trainer() {  # `ins train ARGS`, or through the transient probe when run $1 has a share (file $W/$1.share)
+  local share; share=$(cat $W/$1.share 2>/dev/null); shift
+  if [ -n "$share" ]; then $PY bench/transient_train.py --transient-share $share "$@"; else ins train "$@"; fi; }
 T0=$(date +%s); el() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null
 $PY -c "import torch, sys; print('torch', torch.__version__, 'cuda', torch.cuda.is_available(), sys.version.split()[0])"
@@ -31,7 +35,7 @@ COMMON="--device $DEV --rays ${RAYS:-4096} --batch-scenes ${BATCH:-8} --data-bud
 if [ -n "${MORE:-}" ]; then  # the first call's runs go on from their last.pt, for MORE minutes more each
   for r in $RUNS; do
     TOTAL=$($PY -c "print(round($(cat $W/$r.minutes) + $MORE, 2))"); echo $TOTAL > $W/$r.minutes
-    ins train $W/mix --out $W/$r --resume --device $DEV --minutes $TOTAL >> $W/$r.log 2>&1 &
+    trainer $r $W/mix --out $W/$r --resume --device $DEV --minutes $TOTAL >> $W/$r.log 2>&1 &
   done
   wait; el "resumed runs done"; pack; exit 0
 fi
@@ -61,8 +65,8 @@ el "mix: $(ls $W/mix | wc -l) scenes"
 if [ "$MIN" = auto ]; then MIN=$($PY -c "print(round(max(1.0, (${END_AT:-525} - $(( $(date +%s) - T0 )) - 30) / 60), 2))"); fi
 el "training minutes: $MIN"
 for spec in $RUN_SPECS; do
-  IFS=: read -r name model lr seed <<< "$spec"; echo $MIN > $W/$name.minutes
-  ins train $W/mix --out $W/$name ${!model} $COMMON --seed $seed --lr $lr --steps 200000 --minutes $MIN --val-every 100000 --ckpt-every 250 > $W/$name.log 2>&1 &
+  IFS=: read -r name model lr seed share <<< "$spec"; echo $MIN > $W/$name.minutes; echo "${share:-}" > $W/$name.share
+  trainer $name $W/mix --out $W/$name ${!model} $COMMON --seed $seed --lr $lr --steps 200000 --minutes $MIN --val-every 100000 --ckpt-every 250 > $W/$name.log 2>&1 &
 done
 sleep 60; nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader 2>/dev/null
 for r in $RUNS; do el "$r: $(tr '\r' '\n' < $W/$r.log | grep -v '^\s*$' | tail -1)"; done
