@@ -59,7 +59,8 @@ def choose(renderer: ViewRenderer, camera, near: float, far: float, exclude: lis
         return order[:k].tolist()
     candidates = order[:POOL * k].tolist()
     own = dist[candidates]
-    score = own / own[k - 1].clamp(min=1e-9) + weight * unseen_share(renderer, camera, near, far, candidates)
+    kth = own[min(k, len(own)) - 1].clamp(min=1e-9)  # fewer candidates than k: the farthest one
+    score = own / kth + weight * unseen_share(renderer, camera, near, far, candidates)
     return [candidates[i] for i in torch.argsort(score, stable=True)[:k].tolist()]
 
 
