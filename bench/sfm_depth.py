@@ -60,11 +60,11 @@ def probe(capture: Path, checkpoint: Path | None, views: int) -> None:
         ratio = out.depth.double().cpu().numpy()[row, col] / z
         rel = np.abs(ratio / np.median(ratio) - 1.0)
         errors.append(rel)
-        top, bottom = rel[row < h / 2], rel[row >= h / 2]
+        top, bottom = (float(np.median(part)) if len(part) else float("nan") for part in (rel[row < h / 2],
+                                                                                          rel[row >= h / 2]))
         print(f"{capture.name} {Path(scene.names[index]).name}: {len(z)} SfM points, depth ratio "
-              f"{np.median(ratio):.3f}, median |rel. error| {np.median(rel):.3f} (top half "
-              f"{np.median(top) if len(top) else float('nan'):.3f}, bottom {np.median(bottom) if len(bottom) else float('nan'):.3f}), "
-              f"off by > {OFF:.0%}: {(rel > OFF).mean():.0%}", flush=True)
+              f"{np.median(ratio):.3f}, median |rel. error| {np.median(rel):.3f} (top half {top:.3f}, bottom "
+              f"{bottom:.3f}), off by > {OFF:.0%}: {(rel > OFF).mean():.0%}", flush=True)
     every = np.concatenate(errors)
     print(f"{capture.name}: {len(every)} points over {len(held)} views, median |rel. error| {np.median(every):.3f}, "
           f"off by > {OFF:.0%}: {(every > OFF).mean():.0%}", flush=True)
