@@ -2,8 +2,8 @@
 
 Eval picks the k nearest views by IBRNet's rules (views.view_rule: the angle about the scene centre for
 object-centric captures, camera distance for forward-facing ones). This scores other rules on the dev captures,
-with ViewRenderer's choice patched in this process only, and prints each held-out view's PSNR (--refs: and its references), so a view that
-one reference spoils shows up:
+with ViewRenderer's choice patched in this process only, and prints each held-out view's PSNR (--refs: and its
+references), so a view that one reference spoils shows up:
 
 - vector, dist, matrix: views.view_distances's rules;
 - cover:L: the 3k nearest by the capture's own rule, re-ranked by (own distance / the k-th's) + L x (share of the

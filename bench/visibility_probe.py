@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from insertnerf_cli.model.aggregate import angular_prior, reweigh  # noqa: E402
 from insertnerf_cli.model.consistency import colour_variance  # noqa: E402
 from insertnerf_cli.model.insertnerf import InsertNeRF  # noqa: E402
-from insertnerf_cli.model.projection import Projected, project_samples, ray_angle  # noqa: E402
+from insertnerf_cli.model.projection import Projected, pixel_coordinates, project_samples, ray_angle  # noqa: E402
 from insertnerf_cli.model.types import SampleFeatures  # noqa: E402
 from insertnerf_cli.render import render_image  # noqa: E402
 from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
@@ -70,11 +70,7 @@ def render(self: ViewRenderer, camera, near: float, far: float, exclude: list[in
 
 def visible(encoded, points: torch.Tensor) -> torch.Tensor:
     """[V, 1, P] 1 where a sample's depth in a view is within (1 + tol) of the view's depth map there."""
-    flat = points.reshape(-1, 3).T  # [3, P]
-    proj = encoded.projection.to(points)
-    pix = proj[:, :, :3] @ flat + proj[:, :, 3:]  # [V, 3, P]
-    depth = pix[:, 2:]
-    uv = pix[:, :2] / depth.clamp(min=1e-6)
+    uv, depth = pixel_coordinates(encoded.projection.to(points), points.reshape(-1, 3).T)  # [V, 2 | 1, P]
     scale = torch.tensor([2.0 / encoded.width, 2.0 / encoded.height], dtype=uv.dtype, device=uv.device)[:, None]
     grid = (uv * scale - 1.0).transpose(1, 2)[:, None]  # [V, 1, P, 2]
     maps = STATE["maps"].to(points)  # [V, 1, h, w]

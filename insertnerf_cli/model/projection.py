@@ -81,10 +81,7 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor) -
     """
     rays, samples = points.shape[:2]
     flat = points.reshape(rays * samples, 3).T  # [3, P]
-    proj = encoded.projection.to(points)  # [V, 3, 4]
-    pix = proj[:, :, :3] @ flat + proj[:, :, 3:]  # [V, 3, P]
-    depth = pix[:, 2:]  # [V, 1, P]
-    uv = pix[:, :2] / depth.clamp(min=1e-6)  # [V, 2, P]
+    uv, depth = pixel_coordinates(encoded.projection.to(points), flat)
     valid = ((depth > 1e-6) & (uv[:, :1] >= 0) & (uv[:, :1] <= encoded.width)
              & (uv[:, 1:] >= 0) & (uv[:, 1:] <= encoded.height))  # [V, 1, P]
     pad_h, pad_w = encoded.padded_size
@@ -96,6 +93,14 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor) -
     centers = encoded.centers.to(points)
     return Projected(features, _sample(encoded.images, grid), valid.to(points.dtype),
                      _ray_diff(centers, flat, directions, samples))
+
+
+def pixel_coordinates(projection: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
+    """Pixel positions uv [V, 2, P] and camera depths [V, 1, P] of points [3, P] under K [R | t] [V, 3, 4]
+    (projection_matrices); uv is meaningless where the depth is not positive."""
+    pix = projection[:, :, :3] @ points + projection[:, :, 3:]  # [V, 3, P]
+    depth = pix[:, 2:]
+    return pix[:, :2] / depth.clamp(min=1e-6), depth
 
 
 def _sample(maps: Tensor, grid: Tensor) -> Tensor:
