@@ -8,7 +8,13 @@ references), so a view that one reference spoils shows up:
 - vector, dist, matrix: views.view_distances's rules;
 - cover:L: the 3k nearest by the capture's own rule, re-ranked by (own distance / the k-th's) + L x (share of the
   target's frustum the view does not see: 8 x 8 pixels at 4 depths even in disparity between the bounds);
-- mix:L: the vector angle + L x the angle between the optical axes.
+- mix:L: the vector angle + L x the angle between the optical axes;
+- time:W: the capture's own rule among the views at most W places from the target in the capture's file order
+  (the order a walk or a turntable took them), filled up by the rest: is a view spoilt by what changed between
+  passes (a shadow, a person), i.e. by a scene that is not static? (It reads the held-out view's own place in
+  the capture, which a novel view does not have: a diagnostic, not a rule for render.)
+- anchor:W: the nearest view by the capture's rule, then the rest among the views at most W places from it in the
+  capture's order, filled up by the rest (uses only the references' order, so a novel view could use it too).
 
     OMP_NUM_THREADS=1 python3 bench/view_set_probe.py --rules vector,dist,cover:3 --captures beer --views 3,10
 """
@@ -54,6 +60,13 @@ def choose(renderer: ViewRenderer, camera, near: float, far: float, exclude: lis
     if name == "mix":
         dist = dist + weight * view_distances(camera.c2w[0], c2w, "matrix")
     dist[sorted(set(exclude))] = math.inf
+    if name in ("time", "anchor"):
+        if name == "time":
+            centre = int((c2w - camera.c2w[0]).abs().flatten(1).sum(-1).argmin())  # the held-out view itself
+        else:
+            centre = int(torch.argmin(dist))  # the nearest reference
+        places = (torch.arange(len(dist)) - centre).abs()
+        dist = dist + 1e6 * (places > weight)  # outside the window: after every view inside it
     order = torch.argsort(dist, stable=True)
     if name != "cover":
         return order[:k].tolist()
@@ -102,7 +115,7 @@ def set_rule(rule: str) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rules", default="vector", help="comma-separated: vector, dist, matrix, cover:L, mix:L")
+    parser.add_argument("--rules", default="vector", help="comma-separated: vector, dist, matrix, cover:L, mix:L, time:W, anchor:W")
     add_eval_arguments(parser)
     parser.add_argument("--refs", action="store_true", help="also print each view's references")
     args = parser.parse_args()

@@ -2,8 +2,9 @@
 in this file; the API differences between pycolmap versions are absorbed by :func:`_cam_from_world`.
 
 Pipeline (``estimate_poses``): read and check the images -> SIFT features -> matching (exhaustive for small sets,
-sequential for long ones) -> incremental mapping, keeping the model with the most registered images -> a check of
-the poses against independent two-view estimates (:mod:`insertnerf_cli.posecheck`) -> undistortion to PINHOLE ->
+sequential for long ones) -> incremental mapping, keeping the model with the most registered images -> when the
+model tears the capture's name order (a folded walk, :func:`insertnerf_cli.posecheck.torn_links`), mapping again
+from each image's neighbours in name order alone -> a check of the poses against independent two-view estimates (:mod:`insertnerf_cli.posecheck`) -> undistortion to PINHOLE ->
 ``transforms.json``, the COLMAP model, ``sparse.ply`` and ``cameras.ply``. Everything is written into a temporary
 folder beside the output and renamed into place at the end, so a failure never leaves half a scene.
 """
@@ -26,15 +27,16 @@ from .cameras import Cameras
 from .errors import UserError
 from .lock import lock_output, releases_output_locks
 from .matching import match
-from .posecheck import MIN_PAIR_INLIERS, CheckLimits, PairMatches, PoseCheck, check_relative_poses
+from .posecheck import MIN_PAIR_INLIERS, CheckLimits, PairMatches, PoseCheck, check_relative_poses, torn_links
 from .poses_io import OWNER, InputImages, ModelArrays, check_output, read_inputs, staging_folder, write_scene
 
 Report = Callable[[str], None]
-Matcher = Literal["auto", "exhaustive", "sequential"]
+Matcher = Literal["auto", "exhaustive", "sequential", "chain"]
 
 # Under this fraction of registered images the result is probably not what the user wanted (nerfstudio's habit).
 WARN_REGISTERED_FRACTION = 0.8
 MIN_REGISTERED = 3
+FEATURES_DB = "features.db"  # a copy of the database before matching, beside it, while mapping may run again
 _GENERAL_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.CALIBRATED,
                     pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED)
 _PLANAR_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.PLANAR,
@@ -47,8 +49,10 @@ class PosesOptions:
     """How ``estimate_poses`` runs.
 
     Attributes:
-        matcher: "exhaustive" (every pair), "sequential" (neighbours in name order, for video frames) or "auto"
-            (exhaustive up to ``exhaustive_limit`` images, sequential above, see ``exhaustive_fallback_limit``).
+        matcher: "exhaustive" (every pair), "sequential" (neighbours in name order, for video frames, with links
+            2, 4, 8, ... images ahead), "chain" (only the ``chain_overlap`` next images in name order) or "auto"
+            (exhaustive up to ``exhaustive_limit`` images, sequential above, see ``exhaustive_fallback_limit``;
+            either one mapped again as a chain when its model tears the name order).
         max_image_size: long side, pixels, that SIFT sees (CPU SIFT memory grows with the image size).
         camera_model: COLMAP camera model fitted before undistortion (SIMPLE_RADIAL, RADIAL, OPENCV, PINHOLE).
         num_threads: CPU threads; 0 = every core this process may use.
@@ -61,6 +65,7 @@ class PosesOptions:
         exhaustive_fallback_limit: up to this many images, "auto" matches every pair after all when the
             sequential matcher places under WARN_REGISTERED_FRACTION of them (photos not in video order).
         sequential_overlap: neighbours matched to each image by the sequential matcher.
+        chain_overlap: images after each one that the chain matcher matches it with.
         seed: random seed of the mapper.
     """
 
@@ -76,6 +81,7 @@ class PosesOptions:
     exhaustive_limit: int = 100
     exhaustive_fallback_limit: int = 300
     sequential_overlap: int = 10
+    chain_overlap: int = 5
     seed: int = 0
 
 
@@ -205,6 +211,7 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
         work = tmp / "colmap"
         matcher = _run_features_and_matching(inputs, work / "database.db", options, stages)
         rec, model_dir, matcher = _map_or_match_every_pair(inputs, work, options, matcher, stages)
+        rec, model_dir, matcher = _map_a_torn_walk_as_a_chain(inputs, work, options, matcher, rec, model_dir, stages)
         check = _run_check(rec, work / "database.db", inputs, options, stages)
         stages.start("writing the scene", "undistorting to PINHOLE")
         undistorted = _undistort(model_dir, inputs.folder, tmp)
@@ -234,6 +241,7 @@ def _run_features_and_matching(inputs: InputImages, db_path: Path, options: Pose
                                stages: _Stages) -> str:
     """SIFT features and matches into ``db_path``; returns the matcher used."""
     _extract(inputs, db_path, options, _num_threads(options.num_threads), stages)
+    shutil.copyfile(db_path, db_path.with_name(FEATURES_DB))  # features alone, for a chain mapping if one is needed
     matcher = options.matcher
     if matcher == "auto":
         matcher = "exhaustive" if len(inputs.names) <= options.exhaustive_limit else "sequential"
@@ -243,7 +251,8 @@ def _run_features_and_matching(inputs: InputImages, db_path: Path, options: Pose
 
 def _match(db_path: Path, matcher: str, images: int, options: PosesOptions, stages: _Stages) -> None:
     """One matching stage: COLMAP's matcher with progress, then how many pairs the mapper can use."""
-    stages.done(match(db_path, matcher, images, options.sequential_overlap, _num_threads(options.num_threads),
+    overlap = options.chain_overlap if matcher == "chain" else options.sequential_overlap
+    stages.done(match(db_path, matcher, images, overlap, _num_threads(options.num_threads),
                       lambda what: stages.start("matching", what),
                       lambda done, pairs: stages.tick(done, pairs, "image pairs matched")))
 
@@ -273,6 +282,57 @@ def _map_or_match_every_pair(inputs: InputImages, work: Path, options: PosesOpti
     _match(work / "database.db", "exhaustive", n, options, stages)
     rec, model_dir = _run_mapping(inputs, work, options, stages)
     return rec, model_dir, "exhaustive"
+
+
+def _map_a_torn_walk_as_a_chain(inputs: InputImages, work: Path, options: PosesOptions, matcher: str,
+                                rec: "pycolmap.Reconstruction", model_dir: Path,
+                                stages: _Stages) -> tuple["pycolmap.Reconstruction", Path, str]:
+    """The model, or one mapped from chain matches when the model tears the name order (posecheck.torn_links) and
+    the chain model tears it less, registering as many images. Asked for "exhaustive", only a warning."""
+    features = work / FEATURES_DB
+    torn = _torn(rec, work / "database.db", inputs, options)
+    where = ", ".join(f"{a} | {b}" for a, b in torn[:4]) + (" ..." if len(torn) > 4 else "")
+    what = (f"the poses jump between {len(torn)} pair(s) of images that follow each other in name order and match "
+            f"well ({where}): a symmetric object or repeated texture folded the walk")
+    if not torn or options.matcher in ("exhaustive", "chain"):
+        if torn:
+            stages.report(f"      warning: {what}" + ("; try --matcher chain." if matcher != "chain" else "."))
+        features.unlink()
+        return rec, model_dir, matcher
+    stages.total += 2
+    stages.report(f"      {what}; matching each image with its {options.chain_overlap} next ones only and mapping "
+                  "again")
+    chain = work / "chain"
+    chain.mkdir()
+    os.replace(features, chain / "database.db")
+    _match(chain / "database.db", "chain", len(inputs.names), options, stages)
+    try:
+        rec2, model_dir2 = _run_mapping(inputs, chain, options, stages)
+    except UserError as err:
+        rec2, model_dir2, torn2 = None, None, torn
+        stages.report(f"      the chain did not map ({err}); keeping the first model")
+    else:
+        torn2 = _torn(rec2, chain / "database.db", inputs, options)
+    if rec2 is None or len(torn2) >= len(torn) or rec2.num_reg_images() < rec.num_reg_images():
+        if rec2 is not None:
+            stages.report(f"      the chain model tears {len(torn2)} link(s) and registers {rec2.num_reg_images()} "
+                          f"images; keeping the first model (warning: {what})")
+        shutil.rmtree(chain)
+        return rec, model_dir, matcher
+    stages.report(f"      the chain model keeps the walk ({len(torn2)} torn link(s)): using it")
+    os.replace(chain / "database.db", work / "database.db")
+    shutil.rmtree(work / "mapping")
+    os.replace(chain / "mapping", work / "mapping")
+    shutil.rmtree(chain)
+    return rec2, work / "mapping" / model_dir2.name, "chain"
+
+
+def _torn(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages,
+          options: PosesOptions) -> list[tuple[str, str]]:
+    """Pairs of images next to each other in name order that the model contradicts (posecheck.torn_links)."""
+    place = {name: k for k, name in enumerate(inputs.names)}
+    pairs = _pair_matches(db_path, rec, len(inputs.names), lambda a, b: abs(place[a] - place[b]) == 1)
+    return torn_links(pairs, _check_limits(inputs, options))
 
 
 def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads: int, stages: _Stages) -> None:
@@ -328,9 +388,7 @@ def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
 def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages, options: PosesOptions,
                stages: _Stages) -> PoseCheck:
     stages.start("checking poses", "does the model explain each pair's matches as well as a two-view estimate?")
-    # Keypoints are in full-resolution pixels; SIFT saw the image shrunk to max_image_size.
-    shrink = max(1.0, max(inputs.height, inputs.width) / options.max_image_size)
-    limits = replace(options.check, threshold_px=options.check.threshold_px * shrink)
+    limits = _check_limits(inputs, options)
     check = check_relative_poses(_pair_matches(db_path, rec, options.check_pairs), limits)
     stages.done(check.summary())
     if not check.passed:
@@ -344,8 +402,17 @@ def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImage
     return check
 
 
-def _pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int) -> list[PairMatches]:
-    """Raw matches (normalised coordinates) and model relative poses of up to ``max_pairs`` registered pairs.
+def _check_limits(inputs: InputImages, options: PosesOptions) -> CheckLimits:
+    """The check's limits in the keypoints' pixels: full resolution, where SIFT saw the image shrunk to
+    max_image_size."""
+    shrink = max(1.0, max(inputs.height, inputs.width) / options.max_image_size)
+    return replace(options.check, threshold_px=options.check.threshold_px * shrink)
+
+
+def _pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int,
+                  keep: Callable[[str, str], bool] = lambda a, b: True) -> list[PairMatches]:
+    """Raw matches (normalised coordinates) and model relative poses of up to ``max_pairs`` registered pairs
+    whose image names ``keep`` accepts.
 
     General (non-planar) pairs come first, most matches first: a torn trajectory shows in its strongest links.
     """
@@ -355,7 +422,8 @@ def _pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int)
         pairs = [(*pycolmap.pair_id_to_image_pair(p), g.config in _GENERAL_CONFIGS, len(g.inlier_matches))
                  for p, g in zip(pair_ids, geometries)
                  if len(g.inlier_matches) >= MIN_PAIR_INLIERS and g.config in _GENERAL_CONFIGS + _PLANAR_CONFIGS]
-        pairs = sorted((p for p in pairs if p[0] in poses and p[1] in poses), key=lambda p: (not p[2], -p[3]))
+        pairs = sorted((p for p in pairs if p[0] in poses and p[1] in poses
+                        and keep(rec.images[p[0]].name, rec.images[p[1]].name)), key=lambda p: (not p[2], -p[3]))
         keypoints: dict[int, np.ndarray] = {}
         out = []
         for a, b, general, _ in pairs[:max_pairs]:

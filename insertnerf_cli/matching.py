@@ -74,7 +74,8 @@ def run_with_progress(match: Callable[[], None], db_path: Path, tick: Callable[[
 
 def match(db_path: Path, matcher: str, images: int, overlap: int, threads: int, start: Callable[[str], None],
           tick: Callable[[int, int], None]) -> str:
-    """COLMAP's "exhaustive" or "sequential" (``overlap``, quadratic) matcher over the ``images`` in ``db_path``,
+    """COLMAP's "exhaustive", "sequential" (``overlap``, quadratic) or "chain" (sequential with ``overlap`` linear:
+    each image with the ``overlap`` after it in name order, no long links) matcher over the ``images`` in ``db_path``,
     on the CPU with ``threads``; ``start`` gets the stage's description, ``tick`` (pairs done, pairs) its progress.
     Pairs already in the database count as done (exhaustive after sequential matches only the rest). Returns how
     many pairs the mapper can use, in words."""
@@ -83,8 +84,9 @@ def match(db_path: Path, matcher: str, images: int, overlap: int, threads: int, 
         pairs = exhaustive_pairs(images)
         run = partial(pycolmap.match_exhaustive, db_path, matching_options=matching, device=pycolmap.Device.cpu)
     else:
-        pairs = sequential_pairs(images, overlap)
-        pairing = pycolmap.SequentialPairingOptions(overlap=overlap, quadratic_overlap=True)
+        quadratic = matcher == "sequential"
+        pairs = sequential_pairs(images, overlap, quadratic)
+        pairing = pycolmap.SequentialPairingOptions(overlap=overlap, quadratic_overlap=quadratic)
         run = partial(pycolmap.match_sequential, db_path, matching_options=matching, pairing_options=pairing,
                       device=pycolmap.Device.cpu)
     done_before = pairs_written(db_path) or 0  # matched by an earlier stage: the rest sets the pace

@@ -158,16 +158,25 @@ def _explained(pair: PairMatches, threshold_px: float) -> int:
     return int((dist < threshold_px).sum())
 
 
+def _verdict(pair: PairMatches, threshold_px: float) -> tuple[np.ndarray, int, bool] | None:
+    """(two-view rotation [3, 3], its inlier count, whether the reconstruction contradicts the pair), or None when
+    the pair is too weak to judge."""
+    est = two_view_pose(pair, threshold_px)
+    if est is None:
+        return None
+    R, inliers = est
+    return R, inliers, _explained(pair, 2.0 * threshold_px) < EXPLAINED_FRACTION * inliers
+
+
 def check_relative_poses(pairs: Sequence[PairMatches], limits: CheckLimits = CheckLimits()) -> PoseCheck:
     """Compare the reconstruction's relative pose of every pair with the pair's own two-view estimate."""
     counts = {True: [0, 0], False: [0, 0]}  # general? -> [compared, contradicted]
     weight_all, weight_bad, rot_err = 0, 0, []
     for pair in pairs:
-        est = two_view_pose(pair, limits.threshold_px)
-        if est is None:
+        verdict = _verdict(pair, limits.threshold_px)
+        if verdict is None:
             continue
-        R, inliers = est
-        contradicted = _explained(pair, 2.0 * limits.threshold_px) < EXPLAINED_FRACTION * inliers
+        R, inliers, contradicted = verdict
         counts[pair.general][0] += 1
         counts[pair.general][1] += contradicted
         if pair.general:
@@ -177,3 +186,21 @@ def check_relative_poses(pairs: Sequence[PairMatches], limits: CheckLimits = Che
     median = float(np.median(rot_err)) if rot_err else float("nan")
     share = weight_bad / weight_all if weight_all else 0.0
     return PoseCheck(counts[True][0], counts[False][0], counts[True][1], counts[False][1], share, median, limits)
+
+
+def torn_links(pairs: Sequence[PairMatches], limits: CheckLimits = CheckLimits()) -> list[tuple[str, str]]:
+    """The names of the pairs the reconstruction contradicts, among ``pairs`` = a capture's images that follow each
+    other in name order (video frames, a walk's photos).
+
+    Such neighbours see nearly the same view, so their own matches fix their relative pose firmly; a model that
+    contradicts one has torn the walk there. That is how a symmetric object folds a capture: an object with the
+    same face on two sides (a can's label printed twice) on repeated texture (floor tiles) lets every pair of the
+    far side match as the near side, and the mapper lays the two halves of the walk on one arc. The aggregate
+    check above can miss it: the few torn links are a small share of all pairs (docs/formats.md "Folded walks").
+    """
+    torn = []
+    for pair in pairs:
+        verdict = _verdict(pair, limits.threshold_px)
+        if verdict is not None and verdict[2]:
+            torn.append(pair.names)
+    return torn

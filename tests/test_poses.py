@@ -21,7 +21,8 @@ from insertnerf_cli.colmap import PosesOptions, estimate_poses
 from insertnerf_cli.commands.poses import default_out
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.matching import exhaustive_pairs, pairs_written
-from insertnerf_cli.posecheck import CheckLimits, PairMatches, check_relative_poses, rotation_angle_deg
+from insertnerf_cli.posecheck import (CheckLimits, PairMatches, check_relative_poses, rotation_angle_deg,
+                                      torn_links)
 from insertnerf_cli.poses_io import read_inputs
 from insertnerf_cli.preview import frustum_mesh, write_camera_frustums, write_point_cloud
 from insertnerf_cli.scenes import load_scene
@@ -209,6 +210,19 @@ def test_pose_check_with_too_few_matches_is_inconclusive() -> None:
     assert check.pairs == 0 and check.passed and "inconclusive" in check.summary()
 
 
+def test_torn_links_names_the_neighbours_a_folded_model_contradicts() -> None:
+    """A walk's neighbours whose model pose turns 155 degrees where their matches say 10 (beer's fold) are torn;
+    the links the model explains, and a pair too weak to judge, are not."""
+    p1, p2, rot, t = _two_views(10.0)
+    kept = PairMatches(("0020.jpg", "0021.jpg"), p1, p2, rot, t, 500.0)
+    folded = PairMatches(("0021.jpg", "0022.jpg"), p1, p2, _two_views(155.0)[2], t, 500.0)
+    weak = PairMatches(("0022.jpg", "0023.jpg"), p1[:10], p2[:10], _two_views(155.0)[2], t, 500.0)
+    assert torn_links([kept, folded, weak]) == [("0021.jpg", "0022.jpg")]
+    assert torn_links([kept, weak]) == []
+    # the aggregate check forgives one torn link among 24 good ones: why torn_links looks at neighbours alone
+    assert check_relative_poses([kept] * 24 + [folded]).passed
+
+
 # ---------------------------------------------------------------- previews
 def _ring(n: int) -> Cameras:
     c2w = torch.eye(4, dtype=torch.float64).repeat(n, 1, 1)
@@ -241,10 +255,10 @@ def test_point_cloud_round_trip(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------- a real SfM run
-def _bench_scene():
-    """The accuracy bench's renderer (bench/poses_accuracy.py): a textured room, ray cast with embree."""
-    path = Path(__file__).resolve().parents[1] / "bench" / "poses_accuracy.py"
-    spec = importlib.util.spec_from_file_location("poses_accuracy_bench", path)
+def _bench_scene(script: str = "poses_accuracy"):
+    """A pose bench's renderer (bench/poses_accuracy.py: a textured room, ray cast with embree)."""
+    path = Path(__file__).resolve().parents[1] / "bench" / f"{script}.py"
+    spec = importlib.util.spec_from_file_location(f"{script}_bench", path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # its dataclasses look their module up while being created
     spec.loader.exec_module(module)
@@ -315,3 +329,24 @@ def test_auto_matches_every_pair_when_sequential_matching_fails(tmp_path: Path) 
     with pytest.raises(UserError, match="could be registered|could not build"):
         estimate_poses(tmp_path / "photos", tmp_path / "scene2", replace(small, matcher="sequential"),
                        report=lambda line: None)
+
+
+def test_auto_maps_a_folded_walk_again_as_a_chain(tmp_path: Path) -> None:
+    """Beer's failure, made exact (bench/poses_fold.py): a walk around a box whose opposite sides and floor look
+    the same after a half turn. Every pair matched, SfM lays the far half of the walk onto the near half (measured:
+    rotations 137 deg off); the torn links between neighbours in name order give it away, and the chain of
+    neighbours alone maps the walk right."""
+    bench = _bench_scene("poses_fold")
+    cameras = bench.orbit_cameras(20, (192, 256), 3.5, fov_deg=60.0, height=lambda a: 1.6)
+    images = bench.render(bench.fold_mesh(), cameras, bench.half_turn_colouring)
+    (tmp_path / "photos").mkdir()
+    for i, img in enumerate(images):
+        cv2.imwrite(str(tmp_path / "photos" / f"walk_{i:03d}.png"), img[..., ::-1])
+    lines: list[str] = []
+    result = estimate_poses(tmp_path / "photos", tmp_path / "scene", PosesOptions(), report=lines.append)
+    assert any("follow each other in name order and match well" in line for line in lines), lines
+    assert result.matcher == "chain" and len(result.registered) == 20 and result.check.passed
+    rot_err, _ = bench.pose_errors(cameras, result.cameras)
+    assert float(np.median(rot_err)) < 1.0, rot_err
+    assert sorted(p.name for p in (tmp_path / "scene" / "colmap").iterdir()) == ["database.db", "sparse"]
+    _only_inputs_left(tmp_path, "photos", "scene")

@@ -18,10 +18,11 @@ def default_out(images_dir: Path) -> Path:
 @click.argument("images_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(path_type=Path),
               help="Scene folder to write. Default: a sibling folder named <IMAGES_DIR>_scene.")
-@click.option("--matcher", type=click.Choice(["auto", "exhaustive", "sequential"]), default="auto",
+@click.option("--matcher", type=click.Choice(["auto", "exhaustive", "sequential", "chain"]), default="auto",
               show_default=True, help="Image pairs to match: every pair, or neighbours in name order (video "
-              "frames); auto = exhaustive up to 100 images, sequential above (and every pair after all, up to 300 "
-              "images, when that places under 80% of them).")
+              "frames; chain: only the 5 next images, for symmetric objects); auto = exhaustive up to 100 images, "
+              "sequential above (and every pair after all, up to 300 images, when that places under 80% of them), "
+              "mapped again as a chain when the poses jump between images next to each other in name order.")
 @click.option("--max-image-size", type=click.IntRange(min=100), default=1600, show_default=True,
               help="Long side (pixels) the feature extractor sees; larger needs more memory and time.")
 @click.option("--allow-inconsistent", is_flag=True,
