@@ -57,6 +57,7 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=24)
     parser.add_argument("--size", type=int, default=320, help="image width; the height is 3/4 of it")
     parser.add_argument("--matcher", default="auto", choices=["auto", "exhaustive", "sequential", "chain"])
+    parser.add_argument("--chain-overlap", type=int, default=PosesOptions.chain_overlap)
     args = parser.parse_args()
     cameras = orbit_cameras(args.views, (args.size * 3 // 4, args.size), 3.5, fov_deg=60.0, height=lambda a: 1.6)
     images = render(fold_mesh(), cameras, half_turn_colouring)
@@ -66,11 +67,11 @@ def main() -> None:
         (Path(tmp) / "images").mkdir()
         for name, img in zip(names, images):
             cv2.imwrite(str(Path(tmp) / "images" / name), img[..., ::-1])
-        options = PosesOptions(matcher=args.matcher, allow_inconsistent=True)
+        options = PosesOptions(matcher=args.matcher, allow_inconsistent=True, chain_overlap=args.chain_overlap)
         result = estimate_poses(Path(tmp) / "images", Path(tmp) / "scene", options, report=lines.append)
     truth = cameras.subset([names.index(n) for n in result.registered])
     rot_err, centre_err = pose_errors(truth, result.cameras)
-    print("\n".join(line for line in lines if "torn" in line or "jump" in line or "chain" in line))
+    print("\n".join(line for line in lines if "torn" in line or "jump" in line or "chain" in line or "map" in line))
     print(f"matcher kept      {result.matcher}, {len(result.registered)}/{args.views} registered, reprojection "
           f"{result.mean_reprojection_error:.2f} px")
     print(f"true errors       rotation median {np.median(rot_err):.2f} deg (max {rot_err.max():.2f}), centre "
