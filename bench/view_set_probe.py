@@ -115,7 +115,8 @@ def set_rule(rule: str) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rules", default="vector", help="comma-separated: vector, dist, matrix, cover:L, mix:L, time:W, anchor:W")
+    parser.add_argument("--rules", default="vector",
+                        help="comma-separated: vector, dist, matrix, cover:L, mix:L, time:W, anchor:W")
     add_eval_arguments(parser)
     parser.add_argument("--refs", action="store_true", help="also print each view's references")
     args = parser.parse_args()

@@ -4,7 +4,8 @@ in this file; the API differences between pycolmap versions are absorbed by :fun
 Pipeline (``estimate_poses``): read and check the images -> SIFT features -> matching (exhaustive for small sets,
 sequential for long ones) -> incremental mapping, keeping the model with the most registered images -> when the
 model tears the capture's name order (a folded walk, :func:`insertnerf_cli.posecheck.torn_links`), mapping again
-from each image's neighbours in name order alone -> a check of the poses against independent two-view estimates (:mod:`insertnerf_cli.posecheck`) -> undistortion to PINHOLE ->
+from each image's neighbours in name order alone -> a check of the poses against independent two-view estimates
+(:mod:`insertnerf_cli.posecheck`) -> undistortion to PINHOLE ->
 ``transforms.json``, the COLMAP model, ``sparse.ply`` and ``cameras.ply``. Everything is written into a temporary
 folder beside the output and renamed into place at the end, so a failure never leaves half a scene.
 """

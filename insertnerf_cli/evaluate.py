@@ -123,7 +123,7 @@ def evaluate_scene(scene_dir: str | Path, config: EvalConfig) -> EvalReport:
 def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     """Render each held-out view from its nearest non-held-out views at every count of ``config.counts``, score
     it against the photo, and write the side-by-sides, report.html and JSON report that ``config`` asks for."""
-    from .scenes import load_scene, normalize_scene
+    from .scenes import load_scene, normalize_scene, walk_warning
 
     started = time.perf_counter()
     counts = config.counts
@@ -131,7 +131,10 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     check_eval_outputs(Path(scene_dir), config.checkpoint, config.json_path, out_dir, config.overwrite)
     if out_dir is not None:
         lock_output(out_dir, OWNER)  # one writer per folder (lock.py)
-    scene, _ = normalize_scene(load_scene(Path(scene_dir)))
+    scene = load_scene(Path(scene_dir))
+    if (warning := walk_warning(scene)) is not None:
+        print(warning, file=sys.stderr, flush=True)
+    scene, _ = normalize_scene(scene)
     held = held_out_views(scene, config.max_views)
     size = scene.size_for(config.resolution)
     if min(size) < SSIM_WINDOW:

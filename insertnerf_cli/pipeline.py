@@ -121,8 +121,10 @@ def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, image
 
 def _plan(scene, config: RenderConfig):
     """(normalised scene, its Similarity, the CameraPath to render)."""
-    from .scenes import normalize_scene
+    from .scenes import normalize_scene, walk_warning
 
+    if (warning := walk_warning(scene)) is not None:
+        print(warning, file=sys.stderr, flush=True)
     scene, similarity = normalize_scene(scene)
     kind = config.path or default_path_kind(scene.layout)
     frames = config.frames if config.frames is not None or kind == "input" else DEFAULT_FRAMES

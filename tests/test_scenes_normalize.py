@@ -9,7 +9,7 @@ import torch
 
 from insertnerf_cli.cameras import Cameras
 from insertnerf_cli.scenes import Similarity, load_scene, normalize_scene
-from insertnerf_cli.scenes.geometry import detect_layout, focus_point
+from insertnerf_cli.scenes.geometry import detect_layout, focus_point, folded_walk_warning, walk_jumps
 from insertnerf_cli.scenes.normalize import FORWARD_NEAR_FRACTION, OBJECT_RADIUS
 from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
 from scene_fixtures import known_scene, look_at, write_images, write_llff
@@ -90,3 +90,32 @@ def test_llff_layout_detection_on_the_known_ring(tmp_path: Path) -> None:
     scene = load_scene(write_llff(tmp_path, known))
     assert scene.layout == "object"  # LLFF files can hold 360-degree captures too
     assert detect_layout(known.cameras.subset([0])) == "forward"
+
+
+def _walk(azimuths_deg: list[float]) -> Cameras:
+    """Cameras at these azimuths (in this order) on a ring of radius 4, 20 degrees up, looking at the origin."""
+    c2w = []
+    for a in np.radians(azimuths_deg):
+        centre = 4.0 * np.array([np.cos(a) * np.cos(0.35), np.sin(a) * np.cos(0.35), np.sin(0.35)])
+        c2w.append(look_at(centre, np.zeros(3)))
+    K = torch.tensor([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]], dtype=torch.float64).expand(len(c2w), 3, 3)
+    return Cameras(K.clone(), torch.tensor(np.stack(c2w)), 48, 64)
+
+
+def test_a_folded_walk_is_flagged_and_an_honest_one_is_not() -> None:
+    """Beer's poses: 1.5 turns in 7-degree steps laid on one 150-degree arc, each pass jumping back. A walk in
+    order, the same walk in a random order, and two clips (one jump) give no warning."""
+    walk = [7.0 * i for i in range(72)]  # 1.4 turns
+    folded = [(-110.0 + (a % 150.0)) for a in walk]  # every pass of 150 degrees starts the arc again
+    names = [f"{i:04d}.jpg" for i in range(72)]
+    centre = torch.zeros(3, dtype=torch.float64)
+    jumps = walk_jumps(_walk(folded), centre)
+    assert [i for i, _ in jumps] == [21, 42, 64] and all(step > 100 for _, step in jumps)
+    warning = folded_walk_warning(names, _walk(folded), centre)
+    assert warning is not None and "0021.jpg | 0022.jpg" in warning and "insertnerf poses" in warning
+    assert walk_jumps(_walk(walk), centre) == [] and folded_walk_warning(names, _walk(walk), centre) is None
+    shuffled = list(np.random.default_rng(0).permutation(walk))
+    assert folded_walk_warning(names, _walk(shuffled), centre) is None  # unordered photos: large median step
+    two_clips = walk[:36] + [a + 150.0 for a in walk[:36]]
+    assert len(walk_jumps(_walk(two_clips), centre)) == 1
+    assert folded_walk_warning(names, _walk(two_clips), centre) is None

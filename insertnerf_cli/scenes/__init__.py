@@ -14,12 +14,12 @@ from typing import Callable
 from ..errors import SceneError, os_error_message
 from .base import Layout, Scene
 from .images import IMAGE_EXTENSIONS, Distortion, find_images, read_rgb, resize
-from .normalize import Similarity, normalize_scene
+from .normalize import Similarity, normalize_scene, walk_warning
 from .writers import write_blender_transforms, write_nerfstudio_transforms
 
 __all__ = ["Distortion", "Layout", "Scene", "SceneError", "Similarity", "detect_format", "find_images",
            "load_scene", "normalize_scene", "read_rgb", "resize", "write_blender_transforms",
-           "write_nerfstudio_transforms", "IMAGE_EXTENSIONS"]
+           "walk_warning", "write_nerfstudio_transforms", "IMAGE_EXTENSIONS"]
 
 Reader = Callable[[Path, str, tuple[float, float, float]], Scene]
 

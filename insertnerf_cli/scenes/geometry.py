@@ -5,6 +5,7 @@ All functions take OpenCV cameras (``Cameras``) and work in float64.
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import torch
 from torch import Tensor
@@ -106,3 +107,38 @@ def point_depths(cameras: Cameras, points: Tensor) -> list[Tensor]:
             & (uv[..., 1] >= 0) & (uv[..., 1] <= cameras.height)
         out.append(depth[inside])
     return out
+
+
+# A step between views next to each other in name order counts as a jump above both of these: a photographer's walk
+# moves a few degrees a photo (beer: 7 median), and its poses folded by a symmetric object jump back ~155 degrees.
+JUMP_MIN_DEG, JUMP_MEDIAN_RATIO = 60.0, 8.0
+# Two clips of one walk give one jump; a fold gives one per pass.
+FOLD_MIN_JUMPS = 2
+
+
+def walk_jumps(cameras: Cameras, center: Tensor) -> list[tuple[int, float]]:
+    """Where an object capture's cameras, taken in their stored (name) order, jump about ``center`` [3].
+
+    Returns:
+        [(i, degrees)]: views i and i + 1 sit ``degrees`` apart about the centre, over JUMP_MIN_DEG and
+        JUMP_MEDIAN_RATIO times the median step. Photos not taken in name order have a large median step and no jump.
+    """
+    directions = torch.nn.functional.normalize(cameras.centers.to(torch.float64) - center.to(torch.float64), dim=-1)
+    if len(directions) < 3:
+        return []
+    steps = torch.rad2deg(torch.arccos((directions[1:] * directions[:-1]).sum(-1).clamp(-1.0, 1.0)))  # [N - 1]
+    limit = max(JUMP_MIN_DEG, JUMP_MEDIAN_RATIO * float(steps.median()))
+    return [(i, float(step)) for i, step in enumerate(steps.tolist()) if step > limit]
+
+
+def folded_walk_warning(names: Sequence[str], cameras: Cameras, center: Tensor) -> str | None:
+    """A one-line warning when an object capture's poses jump back and forth between photos next to each other in
+    name order (:func:`walk_jumps`), as beer's folded poses do (docs/commands/poses.md "Folded walks"); else None."""
+    jumps = walk_jumps(cameras, center)
+    if len(jumps) < FOLD_MIN_JUMPS:
+        return None
+    shown = ", ".join(f"{names[i]} | {names[i + 1]} ({step:.0f} deg)" for i, step in jumps[:3])
+    return (f"warning: the poses put {len(jumps)} pairs of photos next to each other in name order far apart "
+            f"about the scene centre ({shown}{' ...' if len(jumps) > 3 else ''}); if they were taken in that "
+            "order, a symmetric object probably folded the walk: renders blend two halves of the scene. "
+            "`insertnerf poses <images> --out <scene>` estimates the poses again and unfolds such walks.")

@@ -19,7 +19,7 @@ from torch import Tensor
 from ..cameras import Cameras, check_shape
 from ..errors import SceneError
 from .base import Scene
-from .geometry import focus_point
+from .geometry import focus_point, folded_walk_warning
 
 OBJECT_RADIUS = 4.0
 FORWARD_NEAR_FRACTION = 0.75
@@ -78,6 +78,13 @@ def scene_center(scene: Scene) -> Tensor:
     centers = scene.cameras.centers.to(torch.float64)
     focus = focus_point(scene.cameras) if scene.layout == "object" else None
     return focus if focus is not None else centers.mean(0)
+
+
+def walk_warning(scene: Scene) -> str | None:
+    """geometry.folded_walk_warning for an object capture (forward-facing grids are not walks); else None."""
+    if scene.layout != "object":
+        return None
+    return folded_walk_warning(scene.names, scene.cameras, scene_center(scene))
 
 
 def normalize_scene(scene: Scene) -> tuple[Scene, Similarity]:
