@@ -37,7 +37,6 @@ Matcher = Literal["auto", "exhaustive", "sequential", "chain"]
 # Under this fraction of registered images the result is probably not what the user wanted (nerfstudio's habit).
 WARN_REGISTERED_FRACTION = 0.8
 MIN_REGISTERED = 3
-FEATURES_DB = "features.db"  # a copy of the database before matching, beside it, while mapping may run again
 _GENERAL_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.CALIBRATED,
                     pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED)
 _PLANAR_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.PLANAR,
@@ -242,7 +241,6 @@ def _run_features_and_matching(inputs: InputImages, db_path: Path, options: Pose
                                stages: _Stages) -> str:
     """SIFT features and matches into ``db_path``; returns the matcher used."""
     _extract(inputs, db_path, options, _num_threads(options.num_threads), stages)
-    shutil.copyfile(db_path, db_path.with_name(FEATURES_DB))  # features alone, for a chain mapping if one is needed
     matcher = options.matcher
     if matcher == "auto":
         matcher = "exhaustive" if len(inputs.names) <= options.exhaustive_limit else "sequential"
@@ -294,7 +292,6 @@ def _map_a_torn_walk_as_a_chain(inputs: InputImages, work: Path, options: PosesO
     Two chains are tried, each image with its next ``chain_overlap`` and then half as many: the mapper can break a
     chain (measured on bench/poses_fold.py, 20 views 18 degrees apart: 1 run in 6 registered 13 of them), and views
     farther apart along the walk can themselves look alike."""
-    features = work / FEATURES_DB
     torn = _torn(rec, work / "database.db", inputs, options)
     where = ", ".join(f"{a} | {b}" for a, b in torn[:4]) + (" ..." if len(torn) > 4 else "")
     what = (f"the poses jump between {len(torn)} pair(s) of images that follow each other in name order and match "
@@ -302,13 +299,12 @@ def _map_a_torn_walk_as_a_chain(inputs: InputImages, work: Path, options: PosesO
     if not torn or options.matcher in ("exhaustive", "chain"):
         if torn:
             stages.report(f"      warning: {what}" + ("; try --matcher chain." if matcher != "chain" else "."))
-        features.unlink()
         return rec, model_dir, matcher
     stages.report(f"      {what}; mapping again from neighbours in name order only")
     for attempt, overlap in enumerate(dict.fromkeys((options.chain_overlap, max(options.chain_overlap // 2, 1)))):
         chain = work / f"chain{attempt}"
         chain.mkdir()
-        shutil.copyfile(features, chain / "database.db")
+        _features_only(work / "database.db", chain / "database.db")
         stages.total += 2
         _match(chain / "database.db", "chain", len(inputs.names), replace(options, chain_overlap=overlap), stages)
         try:
@@ -323,14 +319,22 @@ def _map_a_torn_walk_as_a_chain(inputs: InputImages, work: Path, options: PosesO
                 shutil.rmtree(work / "mapping")
                 os.replace(chain / "mapping", work / "mapping")
                 shutil.rmtree(chain)
-                features.unlink()
                 return rec2, work / "mapping" / model_dir2.name, "chain"
             stages.report(f"      the chain model tears {len(torn2)} link(s) and registers {rec2.num_reg_images()} "
                           "images")
         shutil.rmtree(chain)
     stages.report(f"      keeping the first model; warning: {what}")
-    features.unlink()
     return rec, model_dir, matcher
+
+
+def _features_only(db_path: Path, copy: Path) -> None:
+    """A copy of the database with its images and features but no matches (no COLMAP process has it open now)."""
+    for suffix in ("", "-wal", "-shm"):  # SQLite's journal files, when they outlived the last connection
+        if Path(f"{db_path}{suffix}").exists():
+            shutil.copyfile(f"{db_path}{suffix}", f"{copy}{suffix}")
+    with pycolmap.Database.open(copy) as db:
+        db.clear_matches()
+        db.clear_two_view_geometries()
 
 
 def _torn(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages,
