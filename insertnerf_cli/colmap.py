@@ -37,6 +37,11 @@ Matcher = Literal["auto", "exhaustive", "sequential", "chain"]
 # Under this fraction of registered images the result is probably not what the user wanted (nerfstudio's habit).
 WARN_REGISTERED_FRACTION = 0.8
 MIN_REGISTERED = 3
+# COLMAP's first image pair must see its points under 16 degrees or more; photos of a hand-held forward-facing
+# capture (LLFF's flower: 0.6-3 degrees apart) have no such pair, and its own relaxation did not reach them (flower:
+# no model at 16, all 34 photos from 4 or 2).
+DEFAULT_INIT_TRI_ANGLE = pycolmap.IncrementalPipelineOptions().mapper.init_min_tri_angle
+RELAXED_INIT_TRI_ANGLE = 4.0
 _GENERAL_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.CALIBRATED,
                     pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED)
 _PLANAR_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.PLANAR,
@@ -66,6 +71,9 @@ class PosesOptions:
             sequential matcher places under WARN_REGISTERED_FRACTION of them (photos not in video order).
         sequential_overlap: neighbours matched to each image by the sequential matcher.
         chain_overlap: images after each one that the chain matcher matches it with.
+        init_tri_angle: degrees between the rays of the first pair's points that mapping starts from (None: COLMAP's
+            own, DEFAULT_INIT_TRI_ANGLE); a mapping that places too few images is run again at
+            RELAXED_INIT_TRI_ANGLE.
         seed: random seed of the mapper.
     """
 
@@ -82,6 +90,7 @@ class PosesOptions:
     exhaustive_fallback_limit: int = 300
     sequential_overlap: int = 10
     chain_overlap: int = 5
+    init_tri_angle: float | None = None
     seed: int = 0
 
 
@@ -366,10 +375,41 @@ def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads:
 
 def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
                  stages: _Stages) -> tuple["pycolmap.Reconstruction", Path]:
-    """Incremental mapping; the model with the most registered images and its folder."""
+    """Incremental mapping; the model with the most registered images and its folder. When it places under
+    WARN_REGISTERED_FRACTION of the images (or none), once more from an initial pair that may see its points under
+    RELAXED_INIT_TRI_ANGLE, keeping the model that registers more."""
     n = len(inputs.names)
     stages.start("mapping", f"incremental, {n} images")
-    registered = [0]
+    rec, folder, others = _incremental(inputs, work / "mapping", options, options.init_tri_angle, stages)
+    if rec is None or rec.num_reg_images() < WARN_REGISTERED_FRACTION * n:
+        placed = "no model" if rec is None else f"{rec.num_reg_images()} of {n} images"
+        first = options.init_tri_angle or DEFAULT_INIT_TRI_ANGLE
+        stages.report(f"      {placed}: COLMAP starts from two photos that see their points {first:g} "
+                      "degrees apart or more (hand-held forward-facing photos are 1-3 apart); mapping again from "
+                      f"two at {RELAXED_INIT_TRI_ANGLE:g} or more")
+        relaxed = _incremental(inputs, work / "mapping_relaxed", options, RELAXED_INIT_TRI_ANGLE, stages)
+        if relaxed[0] is not None and (rec is None or relaxed[0].num_reg_images() > rec.num_reg_images()):
+            shutil.rmtree(work / "mapping")
+            os.replace(work / "mapping_relaxed", work / "mapping")
+            rec, folder, others = relaxed[0], work / "mapping" / relaxed[1].name, relaxed[2]
+        else:
+            shutil.rmtree(work / "mapping_relaxed")
+    if rec is None:
+        raise UserError(f"COLMAP could not build any model from the {n} images in {inputs.source}: they share too "
+                        "few matching features; use overlapping, sharp, textured photos of one scene.")
+    if rec.num_reg_images() < MIN_REGISTERED:
+        raise UserError(f"only {rec.num_reg_images()} of {n} images could be registered (need at least "
+                        f"{MIN_REGISTERED}); use more overlapping, sharp, textured photos of one scene.")
+    dropped = f"; other models dropped (registered images): {others}" if others else ""
+    stages.done(f"{rec.num_reg_images()}/{n} registered, {rec.num_points3D()} points, "
+                f"{rec.compute_mean_reprojection_error():.2f} px{dropped}")
+    return rec, folder
+
+
+def _incremental(inputs: InputImages, out: Path, options: PosesOptions, init_tri_angle: float | None,
+                 stages: _Stages) -> tuple["pycolmap.Reconstruction | None", Path, list[int]]:
+    """One incremental mapping into ``out``: (the largest model or None, its folder, the others' sizes)."""
+    n, registered = len(inputs.names), [0]
 
     def on_image() -> None:
         registered[0] += 1
@@ -377,22 +417,16 @@ def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
 
     mapping = pycolmap.IncrementalPipelineOptions(num_threads=_num_threads(options.num_threads),
                                                   random_seed=options.seed, min_model_size=MIN_REGISTERED)
-    (work / "mapping").mkdir(parents=True, exist_ok=True)
-    models = pycolmap.incremental_mapping(work / "database.db", inputs.folder, work / "mapping", options=mapping,
+    if init_tri_angle is not None:
+        mapping.mapper.init_min_tri_angle = init_tri_angle
+    out.mkdir(parents=True, exist_ok=True)
+    models = pycolmap.incremental_mapping(out.parent / "database.db", inputs.folder, out, options=mapping,
                                           next_image_callback=on_image)
     if not models:  # pycolmap logs "Failed to create any sparse model" and returns {} without raising
-        raise UserError(f"COLMAP could not build any model from the {n} images in {inputs.source}: they share too "
-                        "few matching features; use overlapping, sharp, textured photos of one scene.")
+        return None, out, []
     best = max(models, key=lambda k: models[k].num_reg_images())
-    rec = models[best]
-    if rec.num_reg_images() < MIN_REGISTERED:
-        raise UserError(f"only {rec.num_reg_images()} of {n} images could be registered (need at least "
-                        f"{MIN_REGISTERED}); use more overlapping, sharp, textured photos of one scene.")
     others = sorted((m.num_reg_images() for k, m in models.items() if k != best), reverse=True)
-    dropped = f"; other models dropped (registered images): {others}" if others else ""
-    stages.done(f"{rec.num_reg_images()}/{n} registered, {rec.num_points3D()} points, "
-                f"{rec.compute_mean_reprojection_error():.2f} px{dropped}")
-    return rec, work / "mapping" / str(best)
+    return models[best], out / str(best), others
 
 
 def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages, options: PosesOptions,
