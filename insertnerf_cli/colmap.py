@@ -1,5 +1,6 @@
-"""Camera poses from a folder of images with pycolmap, in process, on CPU. Every pycolmap call of insertnerf lives
-in this file; the API differences between pycolmap versions are absorbed by :func:`_cam_from_world`.
+"""Camera poses from a folder of images with pycolmap, in process, on CPU. The pycolmap calls that build a model
+live in this file, those that read one (and the database) in colmap_model.py; the API differences between pycolmap
+versions are absorbed by :func:`insertnerf_cli.colmap_model.cam_from_world`.
 
 Pipeline (``estimate_poses``): read and check the images -> SIFT features -> matching (exhaustive for small sets,
 sequential for long ones) -> incremental mapping, keeping the model with the most registered images -> when the
@@ -20,7 +21,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterator, Literal
 
-import numpy as np
 import pycolmap
 import torch
 
@@ -28,8 +28,10 @@ from .cameras import Cameras
 from .errors import UserError
 from .lock import lock_output, releases_output_locks
 from .matching import match
-from .posecheck import MIN_PAIR_INLIERS, CheckLimits, PairMatches, PoseCheck, check_relative_poses, torn_links
-from .poses_io import OWNER, InputImages, ModelArrays, check_output, read_inputs, staging_folder, write_scene
+from .colmap_model import (features_only, model_arrays, pair_matches, scaled_limits, torn_neighbours,
+                           undistort)
+from .posecheck import CheckLimits, PoseCheck, check_relative_poses
+from .poses_io import OWNER, InputImages, check_output, read_inputs, staging_folder, write_scene
 
 Report = Callable[[str], None]
 Matcher = Literal["auto", "exhaustive", "sequential", "chain"]
@@ -42,11 +44,6 @@ MIN_REGISTERED = 3
 # no model at 16, all 34 photos from 4 or 2).
 DEFAULT_INIT_TRI_ANGLE = pycolmap.IncrementalPipelineOptions().mapper.init_min_tri_angle
 RELAXED_INIT_TRI_ANGLE = 4.0
-_GENERAL_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.CALIBRATED,
-                    pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED)
-_PLANAR_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.PLANAR,
-                   pycolmap.TwoViewGeometryConfiguration.PANORAMIC,
-                   pycolmap.TwoViewGeometryConfiguration.PLANAR_OR_PANORAMIC)
 
 
 @dataclass(frozen=True)
@@ -183,13 +180,6 @@ def _pycolmap_log(verbose: bool) -> Iterator[None]:
         pycolmap.logging.minloglevel = previous
 
 
-def _cam_from_world(image: "pycolmap.Image") -> np.ndarray:
-    """World-to-camera [3, 4] of a registered image. pycolmap >= 3.12 made ``cam_from_world`` a method."""
-    pose = image.cam_from_world
-    pose = pose() if callable(pose) else pose
-    return np.asarray(pose.matrix(), dtype=np.float64)
-
-
 def _num_threads(requested: int) -> int:
     if requested > 0:
         return requested
@@ -223,10 +213,10 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
         rec, model_dir, matcher = _map_a_torn_walk_as_a_chain(inputs, work, options, matcher, rec, model_dir, stages)
         check = _run_check(rec, work / "database.db", inputs, options, stages)
         stages.start("writing the scene", "undistorting to PINHOLE")
-        undistorted = _undistort(model_dir, inputs.folder, tmp)
+        undistorted = undistort(model_dir, inputs.folder, tmp)
         shutil.rmtree(work / "mapping")
         shutil.rmtree(work / "input", ignore_errors=True)  # copies made for COLMAP, now in images/ undistorted
-        scene = write_scene(tmp, _model_arrays(undistorted))
+        scene = write_scene(tmp, model_arrays(undistorted))
         stages.done(f"{len(scene.names)} images, transforms.json, sparse.ply, cameras.ply")
     registered = set(scene.names)
     result = PosesResult(out_dir, tuple(scene.names), tuple(inputs.original(n) for n in inputs.names
@@ -313,7 +303,7 @@ def _map_a_torn_walk_as_a_chain(inputs: InputImages, work: Path, options: PosesO
     for attempt, overlap in enumerate(dict.fromkeys((options.chain_overlap, max(options.chain_overlap // 2, 1)))):
         chain = work / f"chain{attempt}"
         chain.mkdir()
-        _features_only(work / "database.db", chain / "database.db")
+        features_only(work / "database.db", chain / "database.db")
         stages.total += 2
         _match(chain / "database.db", "chain", len(inputs.names), replace(options, chain_overlap=overlap), stages)
         try:
@@ -334,24 +324,6 @@ def _map_a_torn_walk_as_a_chain(inputs: InputImages, work: Path, options: PosesO
         shutil.rmtree(chain)
     stages.report(f"      keeping the first model; warning: {what}")
     return rec, model_dir, matcher
-
-
-def _features_only(db_path: Path, copy: Path) -> None:
-    """A copy of the database with its images and features but no matches (no COLMAP process has it open now)."""
-    for suffix in ("", "-wal", "-shm"):  # SQLite's journal files, when they outlived the last connection
-        if Path(f"{db_path}{suffix}").exists():
-            shutil.copyfile(f"{db_path}{suffix}", f"{copy}{suffix}")
-    with pycolmap.Database.open(copy) as db:
-        db.clear_matches()
-        db.clear_two_view_geometries()
-
-
-def _torn(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages,
-          options: PosesOptions) -> list[tuple[str, str]]:
-    """Pairs of images next to each other in name order that the model contradicts (posecheck.torn_links)."""
-    place = {name: k for k, name in enumerate(inputs.names)}
-    pairs = _pair_matches(db_path, rec, len(inputs.names), lambda a, b: abs(place[a] - place[b]) == 1)
-    return torn_links(pairs, _check_limits(inputs, options))
 
 
 def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads: int, stages: _Stages) -> None:
@@ -429,11 +401,20 @@ def _incremental(inputs: InputImages, out: Path, options: PosesOptions, init_tri
     return models[best], out / str(best), others
 
 
+def _torn(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages,
+          options: PosesOptions) -> list[tuple[str, str]]:
+    return torn_neighbours(rec, db_path, inputs.names, _check_limits(inputs, options))
+
+
+def _check_limits(inputs: InputImages, options: PosesOptions) -> CheckLimits:
+    return scaled_limits(options.check, max(inputs.height, inputs.width), options.max_image_size)
+
+
 def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages, options: PosesOptions,
                stages: _Stages) -> PoseCheck:
     stages.start("checking poses", "does the model explain each pair's matches as well as a two-view estimate?")
     limits = _check_limits(inputs, options)
-    check = check_relative_poses(_pair_matches(db_path, rec, options.check_pairs), limits)
+    check = check_relative_poses(pair_matches(db_path, rec, options.check_pairs), limits)
     stages.done(check.summary())
     if not check.passed:
         message = (f"the poses contradict the images' own two-view geometry ({check.summary()}; limits "
@@ -446,69 +427,3 @@ def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImage
     return check
 
 
-def _check_limits(inputs: InputImages, options: PosesOptions) -> CheckLimits:
-    """The check's limits in the keypoints' pixels: full resolution, where SIFT saw the image shrunk to
-    max_image_size."""
-    shrink = max(1.0, max(inputs.height, inputs.width) / options.max_image_size)
-    return replace(options.check, threshold_px=options.check.threshold_px * shrink)
-
-
-def _pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int,
-                  keep: Callable[[str, str], bool] = lambda a, b: True) -> list[PairMatches]:
-    """Raw matches (normalised coordinates) and model relative poses of up to ``max_pairs`` registered pairs
-    whose image names ``keep`` accepts.
-
-    General (non-planar) pairs come first, most matches first: a torn trajectory shows in its strongest links.
-    """
-    poses = {i: _cam_from_world(img) for i, img in rec.images.items() if img.has_pose}
-    with pycolmap.Database.open(db_path) as db:
-        pair_ids, geometries = db.read_two_view_geometries()
-        pairs = [(*pycolmap.pair_id_to_image_pair(p), g.config in _GENERAL_CONFIGS, len(g.inlier_matches))
-                 for p, g in zip(pair_ids, geometries)
-                 if len(g.inlier_matches) >= MIN_PAIR_INLIERS and g.config in _GENERAL_CONFIGS + _PLANAR_CONFIGS]
-        pairs = sorted((p for p in pairs if p[0] in poses and p[1] in poses
-                        and keep(rec.images[p[0]].name, rec.images[p[1]].name)), key=lambda p: (not p[2], -p[3]))
-        keypoints: dict[int, np.ndarray] = {}
-        out = []
-        for a, b, general, _ in pairs[:max_pairs]:
-            for i in (a, b):
-                if i not in keypoints:  # normalised camera coordinates [K, 2], distortion removed
-                    keypoints[i] = rec.images[i].camera.cam_from_img(db.read_keypoints(i)[:, :2].astype(np.float64))
-            matches = db.read_matches(a, b).astype(np.int64)  # [M, 2]
-            r1, t1, r2, t2 = poses[a][:, :3], poses[a][:, 3], poses[b][:, :3], poses[b][:, 3]
-            rot = r2 @ r1.T
-            out.append(PairMatches((rec.images[a].name, rec.images[b].name), keypoints[a][matches[:, 0]],
-                                   keypoints[b][matches[:, 1]], rot, t2 - rot @ t1,
-                                   float(rec.images[a].camera.mean_focal_length()), general))
-    return out
-
-
-def _undistort(model_dir: Path, image_dir: Path, tmp: Path) -> "pycolmap.Reconstruction":
-    """Undistort images and model to PINHOLE; move them to ``tmp/images`` and ``tmp/colmap/sparse/0``."""
-    staging = tmp / "colmap" / "undistorted"
-    pycolmap.undistort_images(staging, model_dir, image_dir)
-    os.replace(staging / "images", tmp / "images")
-    (tmp / "colmap" / "sparse").mkdir(parents=True, exist_ok=True)
-    os.replace(staging / "sparse", tmp / "colmap" / "sparse" / "0")
-    shutil.rmtree(staging)
-    return pycolmap.Reconstruction(tmp / "colmap" / "sparse" / "0")
-
-
-def _model_arrays(rec: "pycolmap.Reconstruction") -> ModelArrays:
-    """Registered images (sorted by name), their cameras and the points each sees, as plain arrays."""
-    images = sorted((img for img in rec.images.values() if img.has_pose), key=lambda img: img.name)
-    sizes = {(img.camera.height, img.camera.width) for img in images}
-    if len(sizes) != 1:
-        raise UserError(f"the undistorted cameras have {len(sizes)} different image sizes {sorted(sizes)}; "
-                        "resize the input images to one size and run again.")
-    point_ids = np.array(sorted(rec.points3D), dtype=np.int64)
-    index = {int(pid): i for i, pid in enumerate(point_ids)}
-    xyz = np.array([rec.points3D[int(p)].xyz for p in point_ids], dtype=np.float64).reshape(-1, 3)
-    rgb = np.array([rec.points3D[int(p)].color for p in point_ids], dtype=np.uint8).reshape(-1, 3)
-    seen = [np.array([index[p.point3D_id] for p in img.get_observation_points2D()], dtype=np.int64)
-            for img in images]
-    (height, width), = sizes
-    return ModelArrays(names=tuple(img.name for img in images),
-                       K=np.stack([img.camera.calibration_matrix() for img in images]),
-                       w2c=np.stack([_cam_from_world(img) for img in images]), height=height, width=width,
-                       image_ids=tuple(int(img.image_id) for img in images), xyz=xyz, rgb=rgb, seen=seen)
