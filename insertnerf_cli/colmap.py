@@ -356,9 +356,9 @@ def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
     if rec is None or rec.num_reg_images() < WARN_REGISTERED_FRACTION * n:
         placed = "no model" if rec is None else f"{rec.num_reg_images()} of {n} images"
         first = options.init_tri_angle or DEFAULT_INIT_TRI_ANGLE
-        stages.report(f"      {placed}: COLMAP starts from two photos that see their points {first:g} "
-                      "degrees apart or more (hand-held forward-facing photos are 1-3 apart); mapping again from "
-                      f"two at {RELAXED_INIT_TRI_ANGLE:g} or more")
+        stages.report(f"      {placed}: mapping again from a first pair of photos that see their points "
+                      f"{RELAXED_INIT_TRI_ANGLE:g} degrees apart or more instead of {first:g} (photos taken close "
+                      "together, such as a hand-held forward-facing capture, have no wider pair)")
         relaxed = _incremental(inputs, work / "mapping_relaxed", options, RELAXED_INIT_TRI_ANGLE, stages)
         if relaxed[0] is not None and (rec is None or relaxed[0].num_reg_images() > rec.num_reg_images()):
             shutil.rmtree(work / "mapping")
