@@ -39,7 +39,7 @@ def scaled_limits(check: CheckLimits, longest_side: int, max_image_size: int) ->
 
 
 def pair_matches(db_path: Path, rec: "pycolmap.Reconstruction", max_pairs: int,
-                  keep: Callable[[str, str], bool] = lambda a, b: True) -> list[PairMatches]:
+                 keep: Callable[[str, str], bool] = lambda a, b: True) -> list[PairMatches]:
     """Raw matches (normalised coordinates) and model relative poses of up to ``max_pairs`` registered pairs
     whose image names ``keep`` accepts.
 
