@@ -359,11 +359,12 @@ def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
         stages.report(f"      {placed}: mapping again from a first pair of photos that see their points "
                       f"{RELAXED_INIT_TRI_ANGLE:g} degrees apart or more instead of {first:g} (photos taken close "
                       "together, such as a hand-held forward-facing capture, have no wider pair)")
-        relaxed = _incremental(inputs, work / "mapping_relaxed", options, RELAXED_INIT_TRI_ANGLE, stages)
-        if relaxed[0] is not None and (rec is None or relaxed[0].num_reg_images() > rec.num_reg_images()):
+        rec2, folder2, others2 = _incremental(inputs, work / "mapping_relaxed", options, RELAXED_INIT_TRI_ANGLE,
+                                              stages)
+        if rec2 is not None and (rec is None or rec2.num_reg_images() > rec.num_reg_images()):
             shutil.rmtree(work / "mapping")
             os.replace(work / "mapping_relaxed", work / "mapping")
-            rec, folder, others = relaxed[0], work / "mapping" / relaxed[1].name, relaxed[2]
+            rec, folder, others = rec2, work / "mapping" / folder2.name, others2
         else:
             shutil.rmtree(work / "mapping_relaxed")
     if rec is None:

@@ -196,7 +196,8 @@ def torn_links(pairs: Sequence[PairMatches], limits: CheckLimits = CheckLimits()
     contradicts one has torn the walk there. That is how a symmetric object folds a capture: an object with the
     same face on two sides (a can's label printed twice) on repeated texture (floor tiles) lets every pair of the
     far side match as the near side, and the mapper lays the two halves of the walk on one arc. The aggregate
-    check above can miss it: the few torn links are a small share of all pairs (docs/formats.md "Folded walks").
+    check above can miss it: the few torn links are a small share of all pairs (docs/commands/poses.md "Folded
+    walks").
     """
     torn = []
     for pair in pairs:
