@@ -3,7 +3,8 @@
 For each held-out view (eval's split and reference rule, 10 views, 256 px long side) the fine pass is run on rays
 through pixels whose true depth is known, and its compositing weights are split into the mass more than 5 % in
 front of that depth, within 5 %, and more than 5 % behind it; the heaviest sample's depth over the true depth is
-the peak ratio. The truth is
+the peak ratio. It also prints the median relative error of two depths of those rays: the weights' mean
+(render's depth until round 17) and the render's own (Composite.depth, their median since round 17). The truth is
 - for a capture with a COLMAP model (``sparse/0``: beer; or a scene written by ``insertnerf poses``, whose model
   is ``colmap/sparse/0``): the camera-z depth of every feature COLMAP triangulated in the photo (textured points
   only; the same cameras render, so the scale is the normalisation's);
@@ -91,7 +92,7 @@ def probe(scene_dir: Path, model, views: int, resolution: int, versus: Path | No
     held = held_out_views(scene)
     size = scene.size_for(resolution)
     renderer = ViewRenderer(model, scene, size, views)
-    rows = []
+    rows, errors = [], ([], [])  # relative depth errors of the weighted mean and of the render's depth
     for index in held:
         if reconstruction is not None:
             uv, truth = sfm_truth(reconstruction, Path(scene.names[index]).name, size)
@@ -106,12 +107,17 @@ def probe(scene_dir: Path, model, views: int, resolution: int, versus: Path | No
         encoded = renderer._encoded(renderer.references(camera.c2w[0], held, views))
         with torch.inference_mode():
             out = model.render(encoded, rays)
-        rows.append(weight_split(out.weights.double().numpy(), out.t.double().numpy(), truth))
+        weights, t = out.weights.double().numpy(), out.t.double().numpy()
+        rows.append(weight_split(weights, t, truth))
+        mean_depth = (weights * t).sum(1) / np.maximum(weights.sum(1), 1e-12)
+        errors[0].extend(np.abs(mean_depth / truth - 1))
+        errors[1].extend(np.abs(out.depth.double().numpy() / truth - 1))
         print(f"  {Path(scene.names[index]).name}: {len(truth)} pixels, peak/true depth {rows[-1][0]:.3f}, weight "
               f"in front {rows[-1][1]:.2f}, at the surface {rows[-1][2]:.2f}, behind {rows[-1][3]:.2f}", flush=True)
-    mean = np.mean(rows, axis=0)
+    mean = np.concatenate([np.mean(rows, axis=0), [np.median(errors[0]), np.median(errors[1])]])
     print(f"{scene_dir} ({scene.layout}, {len(rows)} views): peak/true depth {mean[0]:.3f}, weight in front "
-          f"{mean[1]:.2f}, at the surface (+-{TOLERANCE:.0%}) {mean[2]:.2f}, behind {mean[3]:.2f}", flush=True)
+          f"{mean[1]:.2f}, at the surface (+-{TOLERANCE:.0%}) {mean[2]:.2f}, behind {mean[3]:.2f}; median |rel. "
+          f"error| of the weighted mean depth {mean[4]:.4f}, of the render's depth {mean[5]:.4f}", flush=True)
     return mean
 
 
@@ -125,11 +131,12 @@ def main() -> None:
     parser.add_argument("--near-scale", type=float, default=1.0, help="multiply every view's near bound")
     args = parser.parse_args()
     model = load_model(checkpoint_path(args.checkpoint), "cpu")
-    means = [probe(scene_dir, model, args.views, args.resolution, args.versus, args.near_scale) for scene_dir in args.scenes]
+    means = [probe(scene_dir, model, args.views, args.resolution, args.versus, args.near_scale)
+             for scene_dir in args.scenes]
     if len(means) > 1:
         mean = np.mean(means, axis=0)
         print(f"mean of {len(means)}: peak/true depth {mean[0]:.3f}, in front {mean[1]:.2f}, at {mean[2]:.2f}, "
-              f"behind {mean[3]:.2f}")
+              f"behind {mean[3]:.2f}; depth error: weighted mean {mean[4]:.4f}, the render's {mean[5]:.4f}")
 
 
 if __name__ == "__main__":

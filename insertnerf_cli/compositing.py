@@ -20,7 +20,7 @@ class Composite:
 
     Attributes:
         rgb: [R, 3] colour composited over the background.
-        depth: [R] expected depth of the visible content, sum(w t) / opacity (stays within [near, far]).
+        depth: [R] median depth of the visible content (median_depth; stays within [near, far]).
         opacity: [R] sum of the weights, in [0, 1].
         weights: [R, S] compositing weights w_k = T_k (1 - exp(-sigma_k delta_k)).
         t: [R, S] sample depths the weights belong to.
@@ -52,11 +52,31 @@ def composite(weights: Tensor, colour: Tensor, t: Tensor, background: Tensor) ->
     """Composite per-sample colours [R, S, 3] with weights [R, S] over ``background`` [3] (or [R, 3])."""
     opacity = weights.sum(dim=-1)  # [R]
     rgb = torch.einsum("rs,rsc->rc", weights, colour) + (1.0 - opacity)[:, None] * background  # [R, 3]
-    # Normalising by the opacity gives the depth of what is seen; an empty ray falls back to its mean sample.
-    depth = (weights * t).sum(dim=-1) / opacity.clamp(min=1e-6)
-    # Unconditional: a test of any() would sync the host with the device on every composite.
-    depth = torch.where(opacity < 1e-6, t.mean(dim=-1), depth)
+    # An empty ray falls back to its mean sample. Unconditional: a test of any() would sync the host with the
+    # device on every composite.
+    depth = torch.where(opacity < 1e-6, t.mean(dim=-1), median_depth(weights, t))
     return Composite(rgb=rgb, depth=depth, opacity=opacity, weights=weights, t=t)
+
+
+def median_depth(weights: Tensor, t: Tensor) -> Tensor:
+    """[R] the depth at which the weights [R, S] on sorted samples t [R, S] reach half their sum.
+
+    Each weight sits at its sample, half of it counted before and half after, and the running sum goes linearly
+    between samples: one opaque sample gives its own t, two equal ones their midpoint, and the depth moves
+    smoothly as weight shifts. Unlike the weighted mean, a tail of weight far behind a surface (a reflection's
+    virtual depth, a faint floater) does not drag the depth off the surface: 10-35 % less error on synth scenes
+    and SfM points (docs/model-card.md, round 17).
+    """
+    if t.shape[-1] == 1:
+        return t[:, 0]
+    running = torch.cumsum(weights, dim=-1) - 0.5 * weights  # [R, S], non-decreasing
+    half = 0.5 * weights.sum(dim=-1, keepdim=True)  # [R, 1]
+    # running[0] <= half <= running[-1] always, so the crossing lies between samples k - 1 and k.
+    k = torch.searchsorted(running.contiguous(), half.contiguous()).clamp(1, t.shape[-1] - 1)  # [R, 1]
+    lo, hi = running.gather(-1, k - 1), running.gather(-1, k)
+    share = ((half - lo) / (hi - lo).clamp(min=1e-12)).clamp(0.0, 1.0)
+    t_lo = t.gather(-1, k - 1)
+    return (t_lo + share * (t.gather(-1, k) - t_lo)).squeeze(-1)
 
 
 def psnr(mse: Tensor) -> Tensor:

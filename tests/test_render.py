@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from insertnerf_cli.rays import rays_for_image
-from insertnerf_cli.compositing import composite, composite_weights
+from insertnerf_cli.compositing import composite, composite_weights, median_depth
 from insertnerf_cli.render import EXACT, render_image
 from insertnerf_cli.sampling import stratified_samples
 from model_fixtures import FAR, NEAR, orbit_cameras, tiny_model_and_views
@@ -40,6 +40,36 @@ def test_opaque_sample_k_gives_depth_t_k():
     density[torch.arange(R), k] = 1e4
     out = composite(composite_weights(density, edges, torch.ones(R)), torch.rand(R, S, 3), t, BLACK)
     torch.testing.assert_close(out.depth, t[torch.arange(R), k])
+
+
+def test_median_depth_of_two_equal_weights_is_their_midpoint_whatever_the_opacity():
+    t, _ = _bins()
+    for mass in (1.0, 0.3):
+        weights = torch.zeros(R, S)
+        weights[:, 2:4] = 0.5 * mass
+        torch.testing.assert_close(median_depth(weights, t), 0.5 * (t[:, 2] + t[:, 3]))
+
+
+def test_median_depth_moves_steadily_from_one_sample_to_the_next_as_weight_shifts():
+    t = torch.linspace(2.0, 6.0, 41)[None].expand(11, 41)
+    weights = torch.zeros(11, 41)
+    share = torch.linspace(0.0, 1.0, 11)
+    weights[:, 10], weights[:, 11] = 1.0 - share, share
+    depth = median_depth(weights, t)
+    assert depth[0] == pytest.approx(3.0) and depth[-1] == pytest.approx(3.1)
+    assert torch.all(depth[1:] - depth[:-1] >= 0) and torch.all(depth[1:] - depth[:-1] <= 0.1 / 5 + 1e-6)
+
+
+def test_a_faint_tail_behind_a_surface_moves_the_median_depth_far_less_than_the_mean():
+    # 80 % of the weight at t = 3 and 20 % spread over t = 5..6 behind it, as a reflection seen at its virtual depth.
+    t = torch.linspace(2.0, 6.0, 41)[None]
+    weights = torch.zeros(1, 41)
+    weights[0, 10] = 0.8
+    weights[0, 30:] = 0.2 / 11
+    mean = float((weights * t).sum() / weights.sum())
+    assert mean == pytest.approx(3.5, abs=1e-4)
+    assert abs(float(median_depth(weights, t)[0]) - 3.0) < 0.05
+    assert abs(float(composite(weights, torch.rand(1, 41, 3), t, WHITE).depth[0]) - 3.0) < 0.05  # what render writes
 
 
 def test_zero_density_gives_background():
