@@ -33,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli.rays import rays_from_pixels  # noqa: E402
 from insertnerf_cli.scenes import load_scene, normalize_scene  # noqa: E402
+from insertnerf_cli.scenes.colmap_model import find_model  # noqa: E402
 from insertnerf_cli.training.depth import read_scene_depth  # noqa: E402
 from insertnerf_cli.view_renderer import ViewRenderer, checkpoint_path, load_model  # noqa: E402
 from insertnerf_cli.views import held_out_views  # noqa: E402
@@ -44,10 +45,10 @@ DIFFERS = 0.1  # colour difference that marks a pixel where the twin scenes diff
 
 
 def colmap_model(scene_dir: Path) -> pycolmap.Reconstruction | None:
-    for sub in ("sparse/0", "colmap/sparse/0"):
-        if (scene_dir / sub).is_dir():
-            return pycolmap.Reconstruction(str(scene_dir / sub))
-    return None
+    """The scene's COLMAP model (find_model: sparse/0 or sparse; under colmap/ in a scene `insertnerf poses`
+    wrote), or None."""
+    found = find_model(scene_dir) or find_model(scene_dir / "colmap")
+    return pycolmap.Reconstruction(str(found)) if found is not None else None
 
 
 def sfm_truth(model: pycolmap.Reconstruction, name: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
