@@ -27,7 +27,7 @@ from .views import held_out_views
 
 @dataclass(frozen=True)
 class EvalConfig:
-    """Settings of one `eval` run (resolution, checkpoint, device, chunk, exact as in RenderConfig).
+    """Settings of one `eval` run (resolution, checkpoint, device, chunk, exact, sfm_depth as in RenderConfig).
 
     Attributes:
         views: reference views per held-out view, or a tuple of counts to score each of (same held-out views).
@@ -43,6 +43,7 @@ class EvalConfig:
     device: str = "cpu"
     chunk: int | None = None
     exact: bool = False
+    sfm_depth: bool = True
     out_dir: Path | None = None
     json_path: Path | None = None
     max_views: int | None = None
@@ -141,7 +142,7 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
         raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
     weights = checkpoint_path(config.checkpoint)
     renderer = ViewRenderer(load_model(weights, config.device), scene, size, max(counts), config.device,
-                            config.chunk, config.exact)
+                            config.chunk, config.exact, config.sfm_depth)
     prepare_side_by_sides(out_dir, held, counts)
     scores: dict[int, list[ViewScore]] = {n: [] for n in counts}
     for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):

@@ -52,6 +52,7 @@ class RenderConfig:
         chunk: rays per network call (bounds memory); None = DEFAULT_CHUNKS of the device.
         exact: every ray gets its own coarse pass and every pixel a fine pass (render.EXACT), instead of the
             default shortcuts (render.Shortcuts: within 0.3 dB, docs/benchmarks.md).
+        sfm_depth: guide the fine samples by the scene's SfM points where it has them (depth_prior).
         overwrite: replace the outputs of a different earlier run in the output folder.
         finetune_minutes: first fine-tune the weights on the scene for this long (cached as OUT/finetune.pt).
         depth_format: "png16" (uint16 PNGs, scale in cameras.json) or "npy" (float32 scene units, NaN invalid).
@@ -67,6 +68,7 @@ class RenderConfig:
     device: str = "cpu"
     chunk: int | None = None
     exact: bool = False
+    sfm_depth: bool = True
     overwrite: bool = False
     finetune_minutes: float | None = None
     depth_format: str = "png16"
@@ -174,7 +176,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               "normalization": similarity.to_json()})
     renderer = ViewRenderer(model, scene, (path.cameras.height, path.cameras.width), config.views, config.device,
-                            config.chunk, config.exact)
+                            config.chunk, config.exact, config.sfm_depth)
     rendered, resumed, seconds, clipped = _render_frames(renderer, path, out_dir, similarity.scale, scale,
                                                          config.depth_format)
     files = [frame_paths(out_dir, i, config.depth_format) for i in range(len(path))]

@@ -11,6 +11,7 @@ from torch import Tensor
 
 from .cameras import Cameras
 from .compositing import Composite
+from .depth_prior import guide_weights
 from .rays import Rays, rays_for_image
 from .sampling import RaySamples
 
@@ -74,7 +75,8 @@ EXACT = Shortcuts(coarse_stride=1, empty_opacity=0.0, fine_stride=1)
 
 
 def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, near: float | Tensor,
-                 far: float | Tensor, chunk: int = 128, shortcuts: Shortcuts = Shortcuts()) -> ImageOutput:
+                 far: float | Tensor, chunk: int = 128, shortcuts: Shortcuts = Shortcuts(),
+                 prior: Tensor | None = None) -> ImageOutput:
     """Render one full frame of ``camera`` (a Cameras of length 1) from the encoded reference views.
 
     Rays go through the network ``chunk`` at a time without autograd, so peak memory is bounded by the chunk
@@ -89,6 +91,8 @@ def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, 
             512 and 2x faster than 1024 (bench/model_speed.py); above glibc's 32 MB mmap threshold every
             allocation also page-faults.
         shortcuts: the work skipped (Shortcuts); EXACT runs every ray's own coarse and fine pass.
+        prior: [H, W] depth of the scene's SfM points in this view (depth_prior.prior_depth; NaN where none), or
+            None: a share of each pixel's fine samples goes around it (depth_prior.guide_weights).
     """
     if len(camera) != 1:
         raise ValueError(f"render_image renders one camera, got {len(camera)}")
@@ -97,6 +101,7 @@ def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, 
     camera = camera.to(device=param.device, dtype=param.dtype)
     bounds = torch.as_tensor([near, far], dtype=param.dtype, device=param.device).reshape(2)
     rays = rays_for_image(camera, bounds[:1], bounds[1:])
+    guide = None if prior is None else prior.to(param).reshape(height * width)  # [R]
 
     with _chunk_workers(param.device) as workers:
         with ThreadPoolExecutor(workers) as pool:
@@ -106,13 +111,22 @@ def render_image(model: "InsertNeRF", encoded: "EncodedViews", camera: Cameras, 
                                                                            device=param.device)), starts))
 
             if shortcuts.exact:
-                outs = chunked(lambda i: model.render(encoded, rays[i]), len(rays))
+                outs = chunked(lambda i: _render_exact(model, encoded, rays[i], None if guide is None else guide[i]),
+                               len(rays))
                 rgb, depth, opacity = (torch.cat([getattr(o, k) for o in outs]) for k in ("rgb", "depth", "opacity"))
             else:
                 rgb, depth, opacity = _render_with_shortcuts(model, encoded, rays, (height, width), shortcuts,
-                                                             chunked)
+                                                             chunked, guide)
     return ImageOutput(rgb=rgb.reshape(height, width, 3).clamp(0.0, 1.0), depth=depth.reshape(height, width),
                        opacity=opacity.reshape(height, width))
+
+
+def _render_exact(model: "InsertNeRF", encoded: "EncodedViews", rays: Rays, guide: Tensor | None) -> Composite:
+    """Each ray's own coarse and fine pass; with ``guide`` [R] the fine samples follow the guided weights."""
+    if guide is None:
+        return model.render(encoded, rays)
+    samples, weights = model.coarse_weights(encoded, rays)
+    return model.render_fine(encoded, rays, samples, guide_weights(weights, samples.t, guide))
 
 
 def _no_grad(work: Callable[[Tensor], T], index: Tensor) -> T:
@@ -121,7 +135,7 @@ def _no_grad(work: Callable[[Tensor], T], index: Tensor) -> T:
 
 
 def _render_with_shortcuts(model: "InsertNeRF", encoded: "EncodedViews", rays: Rays, size: tuple[int, int],
-                           shortcuts: Shortcuts, chunked: Callable) -> tuple[Tensor, ...]:
+                           shortcuts: Shortcuts, chunked: Callable, guide: Tensor | None) -> tuple[Tensor, ...]:
     """(rgb [R, 3], depth [R], opacity [R]) of the frame's R = H * W rays: the coarse pass on a grid of every
     coarse_stride-th pixel, fine samples placed by the blend of the nearest grid rays, empty pixels skipped, the
     fine pass on a grid of every fine_stride-th pixel and on the pixels between whose neighbours disagree."""
@@ -134,6 +148,8 @@ def _render_with_shortcuts(model: "InsertNeRF", encoded: "EncodedViews", rays: R
     live = grid.nearest_max(grid_weights.sum(dim=-1)) >= shortcuts.empty_opacity  # [R]
     # One near/far for the whole frame: every ray has the coarse sample depths of the first grid ray.
     t, edges = passes[0][0].t[:1], passes[0][0].edges[:1]  # [1, S_c], [1, S_c + 1]
+    if guide is not None:  # per pixel, after the blend: the prior is sharper than the coarse grid
+        weights = guide_weights(weights, t.expand(len(weights), -1), guide)
 
     def fine(rows: Tensor) -> Callable[[Tensor], Composite]:
         def run(i: Tensor) -> Composite:

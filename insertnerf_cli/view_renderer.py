@@ -40,10 +40,12 @@ class ViewRenderer:
         model: the generator; scene: the normalised Scene; size: (height, width) of the rendered images.
         views: reference views per image (a render() call may ask for another count).
         device, chunk, exact: as in RenderConfig (chunk None = DEFAULT_CHUNKS of the device).
+        sfm_depth: guide the fine samples by the scene's SfM points where it has them (depth_prior), using only
+            the points that two views outside a frame's ``exclude`` observe.
     """
 
     def __init__(self, model: torch.nn.Module, scene, size: tuple[int, int], views: int, device: str = "cpu",
-                 chunk: int | None = None, exact: bool = False) -> None:
+                 chunk: int | None = None, exact: bool = False, sfm_depth: bool = True) -> None:
         self.model = model
         self.scene, self.size, self.k = scene, size, views
         self.chunk = chunk or DEFAULT_CHUNKS.get(torch.device(device).type, DEFAULT_CHUNKS["cpu"])
@@ -54,6 +56,8 @@ class ViewRenderer:
 
         self.method = view_rule(scene.layout)
         self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
+        self.sfm_depth = sfm_depth and scene.points is not None
+        self._points: dict[frozenset[int], torch.Tensor] = {}  # excluded views -> the points the rest observe
 
     def references(self, target_c2w: torch.Tensor, exclude: list[int], views: int | None = None) -> list[int]:
         from .views import nearest_views
@@ -88,4 +92,22 @@ class ViewRenderer:
         from .render import render_image
 
         refs = self.references(camera.c2w[0], exclude, views)
-        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts), refs
+        prior = self._prior(camera, exclude)
+        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts,
+                            prior), refs
+
+    def _prior(self, camera: Cameras, exclude: list[int]) -> torch.Tensor | None:
+        """[H, W] the SfM depth prior of ``camera`` from the points the views outside ``exclude`` observe (an
+        excluded view, such as eval's held-out photo, must not lend its own observations), or None."""
+        if not self.sfm_depth:
+            return None
+        key = frozenset(exclude)
+        if key not in self._points:
+            allowed = [i for i in range(len(self.scene)) if i not in key]
+            self._points = {key: self.scene.points.seen_from(allowed)}  # one exclusion set per run in practice
+        points = self._points[key]
+        if not len(points):
+            return None
+        from .depth_prior import prior_depth
+
+        return prior_depth(points, camera)

@@ -17,8 +17,8 @@ from .common import FiniteFloat, device_option, overwrite_option, resolve_device
 
 
 def model_options(func: Callable[..., Any] | None = None, *, views_option: Callable | None = None) -> Any:
-    """--views, --resolution, --model, --checkpoint, --chunk, --exact: shared by render and eval (eval passes
-    its own --views, which takes a list)."""
+    """--views, --resolution, --model, --checkpoint, --chunk, --exact, --sfm-depth: shared by render and eval
+    (eval passes its own --views, which takes a list)."""
     if func is None:
         return functools.partial(model_options, views_option=views_option)
     options = [
@@ -40,6 +40,10 @@ def model_options(func: Callable[..., Any] | None = None, *, views_option: Calla
                      help="Give every pixel its own coarse pass and a fine pass (slower). By default the coarse "
                      "pass runs on every 4th pixel, background pixels skip the fine pass, and pixels between "
                      "agreeing neighbours are blended from them (within 0.3 dB)."),
+        click.option("--sfm-depth/--no-sfm-depth", default=True, show_default=True,
+                     help="Where the scene holds structure-from-motion points (a COLMAP model, or poses from "
+                     "`insertnerf poses`), send most fine samples to the depth of the points seen at each pixel "
+                     "(sharper on real photos; docs/model-card.md)."),
     ]
     for option in reversed(options):
         func = option(func)
@@ -84,8 +88,8 @@ def chosen_weights(model: str | None, checkpoint: Path | None) -> Path | None:
 @overwrite_option
 @user_errors
 def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float, views: int,
-           resolution: int, model: str, checkpoint: Path | None, chunk: int, exact: bool, device: str,
-           overwrite: bool, finetune_minutes: float | None, depth_format: str, pointcloud: bool,
+           resolution: int, model: str, checkpoint: Path | None, chunk: int, exact: bool, sfm_depth: bool,
+           device: str, overwrite: bool, finetune_minutes: float | None, depth_format: str, pointcloud: bool,
            pointcloud_points: int) -> None:
     """Render novel views of SCENE_DIR into --out: frames, depth maps, videos and cameras.
 
@@ -99,6 +103,7 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
     """
     config = RenderConfig(path=path_kind, frames=frames, fps=fps, resolution=resolution or None, views=views,
                           checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)),
-                          chunk=chunk, exact=exact, overwrite=overwrite, finetune_minutes=finetune_minutes,
+                          chunk=chunk, exact=exact, sfm_depth=sfm_depth, overwrite=overwrite,
+                          finetune_minutes=finetune_minutes,
                           depth_format=depth_format, pointcloud_points=pointcloud_points if pointcloud else None)
     click.echo(render_scene(scene_dir, out_dir, config).line())

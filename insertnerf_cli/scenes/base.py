@@ -12,6 +12,7 @@ from torch import Tensor
 from ..cameras import Cameras
 from ..errors import SceneError
 from .images import Distortion, read_rgb, resize, undistort
+from .points import ScenePoints
 
 Layout = Literal["object", "forward"]
 
@@ -32,6 +33,7 @@ class Scene:
         depth_paths: optional ground-truth depth per view (synthetic scenes), else None.
         depth_scale: scene units per stored depth unit (e.g. 1e-3 for uint16 millimetres of a metre scene).
         distortion: per view, the lens distortion removed on load (None entries for pinhole views), or None.
+        points: the sparse 3D points of a structure-from-motion model (COLMAP, `insertnerf poses`), or None.
     """
 
     root: Path
@@ -46,6 +48,7 @@ class Scene:
     depth_paths: list[Path] | None = None
     depth_scale: float = 1.0
     distortion: list[Distortion | None] | None = None
+    points: ScenePoints | None = None
 
     def __post_init__(self) -> None:
         n = len(self.cameras)
@@ -112,7 +115,8 @@ class Scene:
         splits = {k: v for k, v in splits.items() if v}
         return replace(self, cameras=self.cameras.subset(indices), image_paths=pick(self.image_paths),
                        near=self.near[indices], far=self.far[indices], splits=splits,
-                       depth_paths=pick(self.depth_paths), distortion=pick(self.distortion))
+                       depth_paths=pick(self.depth_paths), distortion=pick(self.distortion),
+                       points=None if self.points is None else self.points.subset_views(indices))
 
     def with_cameras(self, cameras: Cameras, near: Tensor, far: Tensor) -> "Scene":
         """The same images with other cameras and bounds (used by normalisation)."""

@@ -21,6 +21,7 @@ from .binfiles import check_colmap_binary
 from .common import ReadViews, assemble, safe_path
 from .geometry import point_depths
 from .images import Distortion
+from .points import ScenePoints
 
 MODEL_DIRS = ("sparse/0", "sparse")
 _UNDISTORT_HINT = ("undistort the model first (`colmap image_undistorter`, or run `insertnerf poses` on the "
@@ -53,8 +54,9 @@ def _distortion(model: str, params: np.ndarray, where: str) -> Distortion | None
     return Distortion("opencv", coeffs) if any(coeffs) else None
 
 
-def _observed_depths(rec, image_ids: list[int], cameras: Cameras) -> list[Tensor] | None:
-    """Per image, depths of the 3D points it observes; None when the model has no points."""
+def model_points(rec, image_ids: list[int]) -> ScenePoints | None:
+    """The model's 3D points and, per image of ``image_ids`` (the scene's order), the points it observes; None
+    when the model has no points."""
     if rec.num_points3D() == 0:
         return None
     slot = {image_id: n for n, image_id in enumerate(image_ids)}
@@ -65,12 +67,19 @@ def _observed_depths(rec, image_ids: list[int], cameras: Cameras) -> list[Tensor
         for element in point.track.elements:
             if element.image_id in slot:
                 seen[slot[element.image_id]].append(row)
-    xyz_t = torch.from_numpy(np.stack(xyz))  # [P, 3]
-    if not any(seen):  # points without tracks: use those that project into each image
-        return point_depths(cameras, xyz_t)
+    observed = tuple(torch.tensor(rows, dtype=torch.long) for rows in seen) if any(seen) else None
+    return ScenePoints(torch.from_numpy(np.stack(xyz)), observed)  # a list index into a tensor is slow
+
+
+def _observed_depths(points: ScenePoints | None, cameras: Cameras) -> list[Tensor] | None:
+    """Per image, depths of the 3D points it observes (without tracks: those that project into it); None without
+    points."""
+    if points is None:
+        return None
+    if points.observed is None:
+        return point_depths(cameras, points.xyz)
     z_rows = cameras.w2c[:, 2]  # [N, 4]: camera depth = z_row . (x, 1)
-    index = [torch.tensor(rows, dtype=torch.long) for rows in seen]  # indexing with a list is slow
-    return [xyz_t[rows] @ z_rows[n, :3] + z_rows[n, 3] for n, rows in enumerate(index)]
+    return [points.xyz[rows] @ z_rows[n, :3] + z_rows[n, 3] for n, rows in enumerate(points.observed)]
 
 
 def read_colmap(root: Path, images: str, background: tuple[float, float, float]) -> Scene:
@@ -104,7 +113,8 @@ def read_colmap(root: Path, images: str, background: tuple[float, float, float])
         w2c.append(pose)
     K, c2w = torch.stack(Ks), w2c_to_c2w(torch.stack(w2c))
     declared = Cameras(K, c2w, sizes[0][0], sizes[0][1])  # projection only needs K and poses
+    points = model_points(rec, image_ids)
     views = ReadViews(root=root, paths=paths, K=K, c2w=c2w, format="colmap", sizes=sizes,
-                      depths=_observed_depths(rec, image_ids, declared),
+                      depths=_observed_depths(points, declared), points=points,
                       distortion=dists if any(d is not None for d in dists) else None, source=model_dir)
     return assemble(views, background)

@@ -18,6 +18,7 @@ from ..errors import SceneError
 from .base import Layout, Scene
 from .geometry import bounds_from_depths, bounds_from_geometry, detect_layout
 from .images import MAX_ZOOM, Distortion, blank_free_zoom, image_size, source_share
+from .points import ScenePoints
 
 # Two sizes share an aspect ratio when rescaling one to the other moves its height by at most this many pixels.
 ASPECT_TOLERANCE_PX = 1.0
@@ -58,6 +59,7 @@ class ReadViews:
         sizes: N declared (height, width) that K refers to, or None to take the files' sizes.
         near, far: [N] bounds from the format, or None.
         depths: N tensors of sparse-point depths seen by each view (for bounds), or None.
+        points: the sparse 3D points (structure from motion), or None.
         splits, layout, depth_paths, depth_scale, distortion: as in :class:`Scene` (layout None = detect).
     """
 
@@ -70,6 +72,7 @@ class ReadViews:
     near: Tensor | None = None  # [N]
     far: Tensor | None = None  # [N]
     depths: list[Tensor] | None = None
+    points: ScenePoints | None = None
     splits: dict[str, list[int]] = field(default_factory=dict)
     layout: Layout | None = None
     depth_paths: list[Path] | None = None
@@ -234,4 +237,5 @@ def assemble(views: ReadViews, background: tuple[float, float, float]) -> Scene:
     _check_bounds(views, near, far, given)
     return Scene(root=views.root, cameras=cameras, image_paths=views.paths, near=near, far=far,
                  splits=views.splits, layout=layout, format=views.format, background=background,
-                 depth_paths=views.depth_paths, depth_scale=views.depth_scale, distortion=distortion)
+                 depth_paths=views.depth_paths, depth_scale=views.depth_scale, distortion=distortion,
+                 points=views.points)

@@ -3,7 +3,8 @@
 Intrinsics global or per frame; distortion (OPENCV k1 k2 k3 p1 p2, OPENCV_FISHEYE k1..k4) removed when images
 load (focal lengths zoomed just enough to leave no blank corner); ``applied_transform`` (the rotation nerfstudio
 applied to the COLMAP world) is inverted so poses come back in the original world; without near/far, bounds
-come from ``ply_file_path`` points (as ns-process-data writes them); ``train_filenames``/``val_filenames``/
+come from ``ply_file_path`` points (as ns-process-data writes them), which also become the scene's points (with
+the views observing each one when ``colmap_model`` names the COLMAP model of `insertnerf poses`); ``train_filenames``/``val_filenames``/
 ``test_filenames`` become splits.
 """
 from __future__ import annotations
@@ -18,9 +19,12 @@ from torch import Tensor
 from ..cameras import Cameras
 from ..errors import SceneError
 from .base import Scene
+from .binfiles import check_colmap_binary
+from .colmap_model import model_points
 from .common import ReadViews, assemble, safe_path
 from .geometry import point_depths
 from .jsonframes import depth_scale, layout_key, load_json, read_frames
+from .points import ScenePoints
 from .values import FIX, listing, matrix, show, text
 
 FILENAME = "transforms.json"
@@ -39,9 +43,8 @@ def _applied_transform(meta: dict[str, Any], source: Path) -> Tensor:
     return A
 
 
-def _ply_depths(root: Path, meta: dict[str, Any], cameras: Cameras, A_inv: Tensor,
-                source: Path) -> list[Tensor] | None:
-    """Per-view depths of the points in ``ply_file_path`` (ns-process-data's sparse_pc.ply), None without one."""
+def _ply_points(root: Path, meta: dict[str, Any], A_inv: Tensor, source: Path) -> ScenePoints | None:
+    """The points in ``ply_file_path`` (ns-process-data's sparse_pc.ply, our sparse.ply), None without one."""
     if "ply_file_path" not in meta:
         return None
     path = safe_path(root, text(meta["ply_file_path"], "ply_file_path", source), "ply_file_path", source)
@@ -51,8 +54,43 @@ def _ply_depths(root: Path, meta: dict[str, Any], cameras: Cameras, A_inv: Tenso
         xyz = torch.as_tensor(np.asarray(trimesh.load(path, process=False).vertices), dtype=torch.float64)
     except Exception as err:  # noqa: BLE001 - trimesh raises many types for a bad or missing file
         raise SceneError(f"cannot read the point cloud {path}: {err}") from None
-    xyz = xyz @ A_inv[:3, :3].T + A_inv[:3, 3]  # the points were rotated with the poses
-    return point_depths(cameras, xyz) if len(xyz) else None
+    if xyz.ndim != 2 or xyz.shape[-1] != 3 or not len(xyz):
+        return None
+    return ScenePoints(xyz @ A_inv[:3, :3].T + A_inv[:3, 3])  # the points were rotated with the poses
+
+
+def _tracked_points(root: Path, meta: dict[str, Any], A_inv: Tensor) -> ScenePoints | None:
+    """`insertnerf poses` output: the COLMAP model that ``colmap_model`` names, with the views that observe each
+    point (every frame's ``colmap_im_id``); None when the file does not say or the model cannot be read."""
+    ids = [frame.get("colmap_im_id") for frame in meta["frames"]]
+    folder = meta.get("colmap_model")
+    if not isinstance(folder, str) or not all(type(i) is int for i in ids):
+        return None
+    try:
+        import pycolmap
+
+        model_dir = safe_path(root, folder, "colmap_model")
+        check_colmap_binary(model_dir)
+        points = model_points(pycolmap.Reconstruction(str(model_dir)), ids)
+    except Exception:  # noqa: BLE001 - optional: without the tracks the .ply's points serve
+        return None
+    if points is None:
+        return None
+    return ScenePoints(points.xyz @ A_inv[:3, :3].T + A_inv[:3, 3], points.observed)
+
+
+def _points(root: Path, meta: dict[str, Any], A_inv: Tensor, source: Path, required: bool) -> ScenePoints | None:
+    """The scene's SfM points: tracked ones from our COLMAP model, else the .ply's. A .ply that cannot be read
+    fails the scene only when the bounds depend on it (``required``)."""
+    tracked = _tracked_points(root, meta, A_inv)
+    if tracked is not None:
+        return tracked
+    try:
+        return _ply_points(root, meta, A_inv, source)
+    except SceneError:
+        if required:
+            raise
+        return None
 
 
 def _splits(root: Path, meta: dict[str, Any], paths: list[Path], source: Path) -> dict[str, list[int]]:
@@ -79,12 +117,13 @@ def read_nerfstudio(root: Path, background: tuple[float, float, float]) -> Scene
     frames = read_frames(root, [(source, meta)], default_ext=None)
     A_inv = torch.linalg.inv(_applied_transform(meta, source))
     c2w = A_inv @ frames.c2w
+    points = _points(root, meta, A_inv, source, required=frames.near is None)
     depths = None
-    if frames.near is None:
+    if frames.near is None and points is not None:
         h, w = frames.sizes[0]  # projection needs K and poses; the size only bounds "inside the image"
-        depths = _ply_depths(root, meta, Cameras(frames.K, c2w, h, w), A_inv, source)
+        depths = point_depths(Cameras(frames.K, c2w, h, w), points.xyz)
     views = ReadViews(root=root, paths=frames.paths, K=frames.K, c2w=c2w, format="nerfstudio",
-                      sizes=frames.sizes, near=frames.near, far=frames.far, depths=depths,
+                      sizes=frames.sizes, near=frames.near, far=frames.far, depths=depths, points=points,
                       splits=_splits(root, meta, frames.paths, source), layout=layout_key(meta, source),
                       depth_paths=frames.depth_paths, depth_scale=depth_scale(meta, frames, source),
                       distortion=frames.distortion, source=source)

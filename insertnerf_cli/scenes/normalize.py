@@ -102,4 +102,5 @@ def normalize_scene(scene: Scene) -> tuple[Scene, Similarity]:
         scale = 1.0 / (FORWARD_NEAR_FRACTION * float(scene.near.min()))
     sim = Similarity(torch.eye(3, dtype=torch.float64), -scale * center, scale)
     normed = scene.with_cameras(sim.apply_cameras(scene.cameras), scene.near * scale, scene.far * scale)
-    return replace(normed, depth_scale=scene.depth_scale * scale), sim  # depth files then read in new units
+    points = None if scene.points is None else scene.points.transformed(sim)
+    return replace(normed, depth_scale=scene.depth_scale * scale, points=points), sim  # depth files in new units

@@ -1,0 +1,126 @@
+"""The SfM depth prior: points -> a depth map of the target view -> fine samples guided toward it."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from insertnerf_cli.cameras import Cameras, intrinsics
+from insertnerf_cli.depth_prior import guide_weights, prior_depth
+from insertnerf_cli.sampling import RaySamples, importance_samples
+from insertnerf_cli.scenes import load_scene, normalize_scene
+from insertnerf_cli.scenes.points import ScenePoints
+from scene_fixtures import known_scene, write_colmap
+
+H, W, F = 32, 48, 40.0
+
+
+def camera_at_origin() -> Cameras:
+    """One camera at the origin looking down +z (OpenCV), identity rotation."""
+    K = intrinsics(F, F, W / 2, H / 2)[None].double()
+    return Cameras(K, torch.eye(4, dtype=torch.float64)[None], H, W)
+
+
+def plane_points(z: float, step: float = 0.02) -> torch.Tensor:
+    xs = torch.arange(-1.5, 1.5, step, dtype=torch.float64)
+    gx, gy = torch.meshgrid(xs, xs, indexing="xy")
+    return torch.stack([gx.reshape(-1) * z, gy.reshape(-1) * z, torch.full((gx.numel(),), z)], dim=-1)
+
+
+def test_a_plane_of_points_gives_its_depth_everywhere_it_covers() -> None:
+    depth = prior_depth(plane_points(3.0), camera_at_origin())
+    assert depth.shape == (H, W)
+    assert torch.isfinite(depth).all()
+    torch.testing.assert_close(depth, torch.full((H, W), 3.0, dtype=depth.dtype))
+
+
+def test_the_nearest_point_wins_and_far_from_any_point_there_is_none() -> None:
+    near = torch.tensor([[0.0, 0.0, 2.0]], dtype=torch.float64)  # at the image centre
+    far = torch.tensor([[0.0, 0.0, 5.0]], dtype=torch.float64)
+    depth = prior_depth(torch.cat([far, near]), camera_at_origin())
+    assert float(depth[H // 2, W // 2]) == pytest.approx(2.0)
+    assert math.isnan(float(depth[0, 0]))  # the corner is farther than the reach from the one splat
+    behind = prior_depth(torch.tensor([[0.0, 0.0, -2.0]], dtype=torch.float64), camera_at_origin())
+    assert torch.isnan(behind).all()  # points behind the camera give nothing
+
+
+def test_guide_weights_moves_a_share_toward_the_prior_and_keeps_the_total() -> None:
+    t = torch.linspace(1.0, 5.0, 32).expand(3, 32)
+    weights = torch.zeros(3, 32)
+    weights[:, 5] = 0.9  # the coarse pass found a surface near t = 1.6
+    prior = torch.tensor([4.0, math.nan, 100.0])  # one usable prior, one missing, one outside the samples
+    guided = guide_weights(weights, t, prior, share=0.75, width=0.05)
+    torch.testing.assert_close(guided.sum(-1), weights.sum(-1))
+    torch.testing.assert_close(guided[1:], weights[1:])  # no prior / no sample in the band: unchanged
+    assert float(guided[0, 5]) == pytest.approx(0.25 * 0.9)
+    near_prior = (t[0] - 4.0).abs() < 0.3
+    assert float(guided[0, near_prior].sum()) > 0.5 * 0.9  # most of the moved 0.75 lies within 1.5 widths
+    fine = importance_samples(RaySamples(t[:1].contiguous(), torch.cat([t[:1, :1], t[:1]], -1)), guided[:1], 16,
+                              jitter=False, near=t[:1, 0], far=t[:1, -1])
+    assert int(((fine.t - 4.0).abs() < 0.4).sum()) >= 10  # most fine samples now sit around the prior
+    assert torch.equal(guide_weights(weights, t, prior, share=0.0), weights)
+
+
+def test_points_seen_from_counts_only_the_allowed_views() -> None:
+    xyz = torch.arange(12, dtype=torch.float64).reshape(4, 3)
+    observed = (torch.tensor([0, 1, 2]), torch.tensor([0, 1]), torch.tensor([0, 3]))
+    points = ScenePoints(xyz, observed)
+    assert points.seen_from([0, 1, 2]).tolist() == xyz[[0, 1]].tolist()  # point 2 and 3: one view each
+    assert points.seen_from([1, 2]).tolist() == xyz[[0]].tolist()  # without view 0, point 1 has one view left
+    assert len(points.seen_from([])) == 0
+    assert len(ScenePoints(xyz).seen_from([0])) == 4  # unknown observers: every point
+    assert points.subset_views([2, 0]).seen_from([0, 1]).tolist() == xyz[[0]].tolist()
+
+
+def test_a_colmap_scene_carries_its_points_into_normalised_units(tmp_path: Path) -> None:
+    known = known_scene(5)
+    scene = load_scene(write_colmap(tmp_path / "c", known))
+    assert scene.points is not None and len(scene.points) == len(known.points)
+    assert all(len(rows) == len(known.points) for rows in scene.points.observed)
+    normed, similarity = normalize_scene(scene)
+    expected = similarity.apply_points(torch.from_numpy(known.points))
+    order = lambda xyz: xyz[torch.argsort(xyz[:, 0])]  # noqa: E731 - COLMAP keeps its points in a hash map
+    torch.testing.assert_close(order(normed.points.xyz), order(expected))
+    # The prior of a view sits at its points' camera depths.
+    camera = normed.cameras.subset([0])
+    depth = prior_depth(normed.points.xyz, camera)
+    z = (normed.points.xyz @ camera.w2c[0, :3, :3].T + camera.w2c[0, :3, 3])[:, 2]
+    seen = depth[torch.isfinite(depth)]
+    assert float(seen.min()) >= float(z.min()) - 1e-9 and float(seen.max()) <= float(z.max()) + 1e-9
+    assert np.isfinite(depth.numpy()).mean() > 0.2
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_render_follows_the_prior_only_where_there_is_one(exact: bool) -> None:
+    from model_fixtures import FAR, NEAR, RADIUS, tiny_model_and_views
+
+    from insertnerf_cli.render import EXACT, Shortcuts, render_image
+
+    model, encoded, camera = tiny_model_and_views(size=12)
+    shortcuts = EXACT if exact else Shortcuts()
+    plain = render_image(model, encoded, camera, NEAR, FAR, shortcuts=shortcuts)
+    none = render_image(model, encoded, camera, NEAR, FAR, shortcuts=shortcuts,
+                        prior=torch.full((12, 12), math.nan))
+    torch.testing.assert_close(none.rgb, plain.rgb)
+    torch.testing.assert_close(none.depth, plain.depth)
+    surface = torch.full((12, 12), RADIUS - 1.0)  # the sphere's front, where a trained model would put it
+    guided = render_image(model, encoded, camera, NEAR, FAR, shortcuts=shortcuts, prior=surface)
+    # The untrained model's depth moves toward the prior.
+    assert float((guided.depth - surface).abs().mean()) < float((plain.depth - surface).abs().mean())
+
+
+def test_eval_uses_the_points_unless_told_not_to(tmp_path: Path) -> None:
+    from test_render_cli import make_checkpoint, run
+
+    checkpoint = make_checkpoint(tmp_path / "tiny.pt")
+    scene = write_colmap(tmp_path / "c", known_scene(9))
+    scores = {}
+    for flag in ("--sfm-depth", "--no-sfm-depth"):
+        result = run("eval", scene, "--checkpoint", checkpoint, "--device", "cpu", "--views", 3, flag,
+                     "--json", tmp_path / f"{flag}.json")
+        assert result.exit_code == 0, result.output
+        scores[flag] = (tmp_path / f"{flag}.json").read_text()
+    assert scores["--sfm-depth"] != scores["--no-sfm-depth"]
