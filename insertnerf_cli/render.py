@@ -144,12 +144,13 @@ def _render_with_shortcuts(model: "InsertNeRF", encoded: "EncodedViews", rays: R
     grid_rays = rays[grid.index]
     passes = chunked(lambda i: model.coarse_weights(encoded, grid_rays[i]), len(grid_rays))
     grid_weights = torch.cat([w for _, w in passes])  # [G, S_c]
-    weights = grid.blend(grid_weights)  # [R, S_c]
-    live = grid.nearest_max(grid_weights.sum(dim=-1)) >= shortcuts.empty_opacity  # [R]
     # One near/far for the whole frame: every ray has the coarse sample depths of the first grid ray.
     t, edges = passes[0][0].t[:1], passes[0][0].edges[:1]  # [1, S_c], [1, S_c + 1]
-    if guide is not None:  # per pixel, after the blend: the prior is sharper than the coarse grid
-        weights = guide_weights(weights, t.expand(len(weights), -1), guide)
+    if guide is not None:  # on the grid, before the blend: a pixel whose grid neighbours' priors differ (an edge,
+        # a wrong fill) gets samples around each of them. Per pixel after the blend: room -0.4 dB (round 18).
+        grid_weights = guide_weights(grid_weights, t.expand(len(grid_weights), -1), guide[grid.index])
+    weights = grid.blend(grid_weights)  # [R, S_c]
+    live = grid.nearest_max(grid_weights.sum(dim=-1)) >= shortcuts.empty_opacity  # [R]
 
     def fine(rows: Tensor) -> Callable[[Tensor], Composite]:
         def run(i: Tensor) -> Composite:

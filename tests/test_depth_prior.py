@@ -124,3 +124,34 @@ def test_eval_uses_the_points_unless_told_not_to(tmp_path: Path) -> None:
         assert result.exit_code == 0, result.output
         scores[flag] = (tmp_path / f"{flag}.json").read_text()
     assert scores["--sfm-depth"] != scores["--no-sfm-depth"]
+
+
+def test_fit_similarity_recovers_a_known_one() -> None:
+    from insertnerf_cli.scenes.colmap_model import fit_similarity
+
+    gen = torch.Generator().manual_seed(3)
+    src = torch.randn(20, 3, generator=gen, dtype=torch.float64)
+    q, _ = torch.linalg.qr(torch.randn(3, 3, generator=gen, dtype=torch.float64))
+    rotation = q * torch.sign(torch.linalg.det(q))  # proper
+    translation = torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)
+    R, t, s, rms = fit_similarity(src, 2.5 * src @ rotation.T + translation)
+    torch.testing.assert_close(R, rotation)
+    torch.testing.assert_close(t, translation)
+    assert s == pytest.approx(2.5) and rms < 1e-9
+    assert fit_similarity(torch.zeros(4, 3, dtype=torch.float64), src[:4]) is None
+
+
+def test_an_llff_scene_takes_the_points_of_the_colmap_model_beside_it(tmp_path: Path) -> None:
+    from scene_fixtures import write_llff
+
+    known = known_scene(6)
+    root = write_colmap(tmp_path / "s", known)
+    write_llff(root, known)  # poses_bounds.npy is read first; sparse/0 holds the same solution
+    scene = load_scene(root)
+    assert scene.format == "llff" and scene.points is not None and len(scene.points) == len(known.points)
+    # Another solution beside the cameras (two of the model's cameras swapped) is not taken for this one.
+    moved = type(known)(known.cameras.subset([1, 0, 2, 3, 4, 5]), *[getattr(known, f) for f in
+                                                                   ("points", "images", "names", "near", "far")])
+    write_colmap(tmp_path / "m", moved)
+    write_llff(tmp_path / "m", known)
+    assert load_scene(tmp_path / "m").points is None

@@ -118,3 +118,60 @@ def read_colmap(root: Path, images: str, background: tuple[float, float, float])
                       depths=_observed_depths(points, declared), points=points,
                       distortion=dists if any(d is not None for d in dists) else None, source=model_dir)
     return assemble(views, background)
+
+
+# Another format's cameras and a COLMAP model beside them are taken for the same solution when the model's camera
+# centres map onto theirs to within this share of their spread (a different model leaves metres, not millimetres).
+ALIGN_TOLERANCE = 0.01
+
+
+def aligned_model_points(root: Path, c2w: Tensor, paths: list[Path]) -> ScenePoints | None:
+    """The points of the COLMAP model kept beside another format's cameras (``sparse/0``, ``sparse`` or under
+    ``colmap/``, as LLFF's and nerfstudio's tools leave them), moved into those cameras' world by the similarity
+    that maps the model's camera centres onto the cameras' ``c2w`` [N, 4, 4] (images matched by file name), with
+    the views observing each point in the cameras' order. None without such a model, with fewer than three
+    matched images, or when the centres do not agree (ALIGN_TOLERANCE): the points then belong to another solution.
+    """
+    import pycolmap
+
+    model_dir = find_model(root) or find_model(root / "colmap")
+    if model_dir is None:
+        return None
+    try:
+        check_colmap_binary(model_dir)
+        rec = pycolmap.Reconstruction(str(model_dir))
+        ids = {Path(im.name).name: i for i, im in rec.images.items() if im.has_pose}
+    except Exception:  # noqa: BLE001 - optional: the scene's own cameras do not depend on it
+        return None
+    matched = [(n, ids[p.name]) for n, p in enumerate(paths) if p.name in ids]
+    if len(matched) < 3:
+        return None
+    theirs = torch.stack([torch.from_numpy(np.asarray(rec.images[i].projection_center(), dtype=np.float64))
+                          for _, i in matched])
+    ours = c2w[[n for n, _ in matched], :3, 3].to(torch.float64)
+    fit = fit_similarity(theirs, ours)
+    if fit is None or fit[3] > ALIGN_TOLERANCE * float((ours - ours.mean(0)).norm(dim=-1).mean()):
+        return None
+    rotation, translation, scale, _ = fit
+    points = model_points(rec, [ids.get(p.name, -1) for p in paths])
+    if points is None:
+        return None
+    return ScenePoints(scale * points.xyz @ rotation.T + translation, points.observed)
+
+
+def fit_similarity(src: Tensor, dst: Tensor) -> tuple[Tensor, Tensor, float, float] | None:
+    """(R [3, 3], t [3], s, rms residual) of the similarity s R x + t that maps points ``src`` [N, 3] onto ``dst``
+    [N, 3] in the least-squares sense (Umeyama 1991); None when ``src`` has no spread."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    a, b = src - mu_s, dst - mu_d
+    var = float((a * a).sum(-1).mean())
+    if var < 1e-18:
+        return None
+    u, sigma, vt = torch.linalg.svd(b.T @ a / len(src))
+    sign = torch.ones(3, dtype=src.dtype)
+    sign[2] = torch.sign(torch.linalg.det(u @ vt)) or 1.0
+    rotation = u @ torch.diag(sign) @ vt
+    scale = float((sigma * sign).sum()) / var
+    translation = mu_d - scale * rotation @ mu_s
+    residual = float(((scale * a @ rotation.T) - b).norm(dim=-1).pow(2).mean().sqrt())
+    return rotation, translation, scale, residual

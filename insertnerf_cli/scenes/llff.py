@@ -15,6 +15,7 @@ from ..cameras import intrinsics, llff_to_opencv
 from ..errors import SceneError
 from .base import Scene
 from .binfiles import load_npy
+from .colmap_model import aligned_model_points
 from .common import ReadViews, assemble, safe_path
 from .images import find_images
 
@@ -49,6 +50,7 @@ def read_llff(root: Path, images: str, background: tuple[float, float, float]) -
     K = torch.stack([intrinsics(float(f), float(f), 0.5 * float(w), 0.5 * float(h)) for h, w, f in hwf])
     sizes = [(int(round(float(h))), int(round(float(w)))) for h, w, _ in hwf]
     bounds = torch.from_numpy(data[:, 15:])
-    views = ReadViews(root=root, paths=paths, K=K, c2w=llff_to_opencv(mats[:, :, :4]), format="llff",
-                      sizes=sizes, near=bounds[:, 0], far=bounds[:, 1], source=root / FILENAME)
+    c2w = llff_to_opencv(mats[:, :, :4])
+    views = ReadViews(root=root, paths=paths, K=K, c2w=c2w, format="llff", sizes=sizes, near=bounds[:, 0],
+                      far=bounds[:, 1], points=aligned_model_points(root, c2w, paths), source=root / FILENAME)
     return assemble(views, background)

@@ -20,7 +20,7 @@ from ..cameras import Cameras
 from ..errors import SceneError
 from .base import Scene
 from .binfiles import check_colmap_binary
-from .colmap_model import model_points
+from .colmap_model import aligned_model_points, model_points
 from .common import ReadViews, assemble, safe_path
 from .geometry import point_depths
 from .jsonframes import depth_scale, layout_key, load_json, read_frames
@@ -79,18 +79,21 @@ def _tracked_points(root: Path, meta: dict[str, Any], A_inv: Tensor) -> ScenePoi
     return ScenePoints(points.xyz @ A_inv[:3, :3].T + A_inv[:3, 3], points.observed)
 
 
-def _points(root: Path, meta: dict[str, Any], A_inv: Tensor, source: Path, required: bool) -> ScenePoints | None:
-    """The scene's SfM points: tracked ones from our COLMAP model, else the .ply's. A .ply that cannot be read
-    fails the scene only when the bounds depend on it (``required``)."""
+def _points(root: Path, meta: dict[str, Any], A_inv: Tensor, source: Path, c2w: Tensor, paths: list[Path],
+            required: bool) -> ScenePoints | None:
+    """The scene's SfM points: tracked ones from our COLMAP model, else the .ply's, else those of a COLMAP model
+    beside the file that fits its cameras. A .ply that cannot be read fails the scene only when the bounds depend
+    on it (``required``)."""
     tracked = _tracked_points(root, meta, A_inv)
     if tracked is not None:
         return tracked
     try:
-        return _ply_points(root, meta, A_inv, source)
+        points = _ply_points(root, meta, A_inv, source)
     except SceneError:
         if required:
             raise
-        return None
+        points = None
+    return points if points is not None else aligned_model_points(root, c2w, paths)
 
 
 def _splits(root: Path, meta: dict[str, Any], paths: list[Path], source: Path) -> dict[str, list[int]]:
@@ -117,7 +120,7 @@ def read_nerfstudio(root: Path, background: tuple[float, float, float]) -> Scene
     frames = read_frames(root, [(source, meta)], default_ext=None)
     A_inv = torch.linalg.inv(_applied_transform(meta, source))
     c2w = A_inv @ frames.c2w
-    points = _points(root, meta, A_inv, source, required=frames.near is None)
+    points = _points(root, meta, A_inv, source, c2w, frames.paths, required=frames.near is None)
     depths = None
     if frames.near is None and points is not None:
         h, w = frames.sizes[0]  # projection needs K and poses; the size only bounds "inside the image"
