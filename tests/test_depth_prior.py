@@ -155,3 +155,28 @@ def test_an_llff_scene_takes_the_points_of_the_colmap_model_beside_it(tmp_path: 
     write_colmap(tmp_path / "m", moved)
     write_llff(tmp_path / "m", known)
     assert load_scene(tmp_path / "m").points is None
+
+
+def test_poses_output_reads_its_points_with_their_observers(tmp_path: Path) -> None:
+    """transforms.json as `insertnerf poses` writes it: colmap_model + each frame's colmap_im_id."""
+    from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
+
+    known = known_scene(6)
+    root = write_colmap(tmp_path / "p", known)  # sparse/0 with image ids 1..6 in name order
+    (root / "sparse").rename(root / "colmap")
+    order = [3, 0, 5, 1, 4, 2]  # frames in another order than the model's ids
+    write_nerfstudio_transforms(root / "transforms.json", known.cameras.subset(order),
+                                [f"images/{known.names[i]}" for i in order], near=known.near[order],
+                                far=known.far[order], extra={"colmap_model": "colmap/0"},
+                                frame_extras=[{"colmap_im_id": i + 1} for i in order])
+    scene = load_scene(root)
+    assert scene.format == "nerfstudio" and scene.points.observed is not None
+    assert len(scene.points.seen_from([0, 1])) == len(known.points)  # every point is seen by every view
+    # A frame whose id the model lacks observes nothing.
+    write_nerfstudio_transforms(root / "transforms.json", known.cameras.subset(order),
+                                [f"images/{known.names[i]}" for i in order], near=known.near[order],
+                                far=known.far[order], extra={"colmap_model": "colmap/0"},
+                                frame_extras=[{"colmap_im_id": 99 if i == 3 else i + 1} for i in order])
+    points = load_scene(root).points
+    assert len(points.observed[0]) == 0 and len(points.seen_from([0, 1])) == 0
+    assert len(points.seen_from([1, 2])) == len(known.points)
