@@ -1,12 +1,13 @@
 """Fine samples guided by the scene's structure-from-motion points (render and eval, no training).
 
 The coarse pass finds surfaces by matching the references, which on real photos puts much of the weight off the
-surface: the median depth error at SfM features is 7-13 % on the dev walk-arounds (docs/model-card.md, round 17),
+surface: the median depth error at SfM features is 7-13 % on the dev captures (docs/model-card.md, round 17),
 and at references 10-30 degrees apart that fetches their colours many pixels away. A scene posed by COLMAP or
 `insertnerf poses` knows where its textured surfaces are. Its points, projected into the target view and splatted
 with a z-buffer (the nearest point wins), give a depth at most pixels; ``guide_weights`` then sends a share of the
 fine samples to a narrow band around it and leaves the rest where the coarse pass put them, so the fine pass sees
-both candidates and its densities decide (round 18: beer +1.2 dB, room +0.6, mold_gold_cape +0.4 at 10 views).
+both candidates and its densities decide (round 18, fast generator at 10 views: flower +2.9 dB, beer +1.2, room
++0.5, mold_gold_cape +0.4, each posed by COLMAP).
 """
 from __future__ import annotations
 

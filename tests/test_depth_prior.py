@@ -180,3 +180,14 @@ def test_poses_output_reads_its_points_with_their_observers(tmp_path: Path) -> N
     points = load_scene(root).points
     assert len(points.observed[0]) == 0 and len(points.seen_from([0, 1])) == 0
     assert len(points.seen_from([1, 2])) == len(known.points)
+
+
+def test_a_damaged_model_beside_an_llff_scene_is_ignored(tmp_path: Path) -> None:
+    from scene_fixtures import write_llff
+
+    root = write_llff(tmp_path / "s", known_scene(5))
+    (root / "sparse" / "0").mkdir(parents=True)
+    for name in ("cameras.bin", "images.bin", "points3D.bin"):
+        (root / "sparse" / "0" / name).write_bytes(b"\xff" * 7)
+    scene = load_scene(root)
+    assert scene.format == "llff" and scene.points is None
