@@ -4,8 +4,9 @@ Intrinsics global or per frame; distortion (OPENCV k1 k2 k3 p1 p2, OPENCV_FISHEY
 load (focal lengths zoomed just enough to leave no blank corner); ``applied_transform`` (the rotation nerfstudio
 applied to the COLMAP world) is inverted so poses come back in the original world; without near/far, bounds
 come from ``ply_file_path`` points (as ns-process-data writes them), which also become the scene's points (with
-the views observing each one when ``colmap_model`` names the COLMAP model of `insertnerf poses`); ``train_filenames``/``val_filenames``/
-``test_filenames`` become splits.
+the views observing each one when ``colmap_model`` names the COLMAP model of `insertnerf poses`; else those of a
+COLMAP model beside the file that fits its cameras); ``train_filenames``/``val_filenames``/``test_filenames``
+become splits.
 """
 from __future__ import annotations
 
