@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli.cameras import Cameras, intrinsics  # noqa: E402
 from insertnerf_cli.colmap import PosesOptions, estimate_poses  # noqa: E402
+from insertnerf_cli.scenes.colmap_model import fit_similarity  # noqa: E402
 
 ROOM_HALF = 5.0  # the room spans [-5, 5]^3
 # (lattice cells per world unit, weight): a 400 px view at 60 deg shows ~100 px per unit at 3 units, so the
@@ -147,20 +148,10 @@ def render_scene(views: int, size: int, seed: int = 0, arc_deg: float = 360.0) -
     return RenderedScene(images, cameras, radius)
 
 
-def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Similarity (s, R [3, 3], t [3]) minimising |s R src + t - dst|^2 over points [N, 3] (Umeyama 1991)."""
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    xs, xd = src - mu_s, dst - mu_d
-    u, sig, vt = np.linalg.svd(xd.T @ xs / len(src))
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])  # keep a rotation, not a reflection
-    rot = u @ d @ vt
-    scale = float(np.trace(np.diag(sig) @ d) / (xs ** 2).sum(1).mean())
-    return scale, rot, mu_d - scale * rot @ mu_s
-
-
 def pose_errors(truth: Cameras, est: Cameras) -> tuple[np.ndarray, np.ndarray]:
     """Per-camera rotation error (deg) and centre error (world units) after aligning ``est`` onto ``truth``."""
-    s, rot, t = umeyama(est.centers.numpy(), truth.centers.numpy())
+    rotation, translation, s, _ = fit_similarity(est.centers.double(), truth.centers.double())
+    rot, t = rotation.numpy(), translation.numpy()
     centres = s * est.centers.numpy() @ rot.T + t
     r_est = rot @ est.c2w[:, :3, :3].numpy()  # [N, 3, 3] camera axes in the true world
     rel = np.einsum("nji,njk->nik", truth.c2w[:, :3, :3].numpy(), r_est)

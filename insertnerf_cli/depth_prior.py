@@ -41,12 +41,9 @@ def prior_depth(points: Tensor, camera: Cameras) -> Tensor:
     long_side = max(height, width)
     splat = max(1, round(SPLAT_FRACTION * long_side))
     reach = max(1, round(REACH_FRACTION * long_side))
-    w2c = camera.w2c[0].to(torch.float64).cpu()
-    local = points.to(torch.float64).cpu() @ w2c[:3, :3].T + w2c[:3, 3]  # [P, 3]
-    local = local[local[:, 2] > 1e-9]
-    uv = local @ camera.K[0].to(torch.float64).cpu().T
-    uv = uv[:, :2] / uv[:, 2:]
-    depth = _splat(uv, local[:, 2], height, width, splat)
+    uv, z = camera.to(device="cpu", dtype=torch.float64).project(points.to(device="cpu", dtype=torch.float64))
+    front = z[0] > 1e-9  # uv is meaningless behind the camera
+    depth = _splat(uv[0][front], z[0][front], height, width, splat)
     return _fill(depth, reach).to(camera.K.device)
 
 

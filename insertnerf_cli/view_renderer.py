@@ -57,7 +57,7 @@ class ViewRenderer:
         self.method = view_rule(scene.layout)
         self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
         self.sfm_depth = sfm_depth and scene.points is not None
-        self._points: dict[frozenset[int], torch.Tensor] = {}  # excluded views -> the points the rest observe
+        self._points: tuple[frozenset[int], torch.Tensor] | None = None  # (excluded views, what the rest observe)
 
     def references(self, target_c2w: torch.Tensor, exclude: list[int], views: int | None = None) -> list[int]:
         from .views import nearest_views
@@ -102,10 +102,10 @@ class ViewRenderer:
         if not self.sfm_depth:
             return None
         key = frozenset(exclude)
-        if key not in self._points:
+        if self._points is None or self._points[0] != key:  # eval keeps one set; render --path input one a frame
             allowed = [i for i in range(len(self.scene)) if i not in key]
-            self._points = {key: self.scene.points.seen_from(allowed)}  # one exclusion set per run in practice
-        points = self._points[key]
+            self._points = (key, self.scene.points.seen_from(allowed))
+        points = self._points[1]
         if not len(points):
             return None
         from .depth_prior import prior_depth

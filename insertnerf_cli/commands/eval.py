@@ -74,8 +74,8 @@ def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, 
     """
     config = EvalConfig(views=views[0] if len(views) == 1 else views, resolution=resolution or None,
                         checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)),
-                        chunk=chunk, exact=exact, sfm_depth=sfm_depth, out_dir=out_dir, json_path=json_path, max_views=max_views,
-                        overwrite=overwrite)
+                        chunk=chunk, exact=exact, sfm_depth=sfm_depth, out_dir=out_dir, json_path=json_path,
+                        max_views=max_views, overwrite=overwrite)
     run = run_eval(scene_dir, config)
     written = [f"{what} in {path.resolve()}" for what, path in
                (("report", json_path), ("side-by-sides and report.html", out_dir)) if path is not None]
