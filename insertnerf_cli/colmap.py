@@ -170,7 +170,7 @@ class _Stages:
 
 
 @contextmanager
-def _pycolmap_log(verbose: bool) -> Iterator[None]:
+def pycolmap_log(verbose: bool) -> Iterator[None]:
     """Silence pycolmap's glog unless verbose (our own messages report its failures); restore the level after."""
     previous = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = 0 if verbose else 3
@@ -204,7 +204,7 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
     lock_output(out_dir, OWNER)
     stages = _Stages(report, total=6)
     stages.start("reading images", str(images_dir))
-    with staging_folder(out_dir) as tmp, _pycolmap_log(options.verbose):
+    with staging_folder(out_dir) as tmp, pycolmap_log(options.verbose):
         inputs = read_inputs(images_dir, tmp / "colmap" / "input")
         stages.done(f"{len(inputs.names)} images of {inputs.width}x{inputs.height}")
         work = tmp / "colmap"

@@ -137,6 +137,10 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
         print(warning, file=sys.stderr, flush=True)
     scene, _ = normalize_scene(scene)
     held = held_out_views(scene, config.max_views)
+    if config.sfm_depth:  # from the references alone: a held-out photo lends nothing to its own render
+        from .triangulate import with_points
+
+        scene = with_points(scene, [i for i in range(len(scene)) if i not in held])
     size = scene.size_for(config.resolution)
     if min(size) < SSIM_WINDOW:
         raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")

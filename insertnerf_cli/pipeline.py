@@ -52,7 +52,8 @@ class RenderConfig:
         chunk: rays per network call (bounds memory); None = DEFAULT_CHUNKS of the device.
         exact: every ray gets its own coarse pass and every pixel a fine pass (render.EXACT), instead of the
             default shortcuts (render.Shortcuts: within 0.3 dB, docs/benchmarks.md).
-        sfm_depth: guide the fine samples by the scene's SfM points where it has them (depth_prior).
+        sfm_depth: guide the fine samples by the scene's SfM points (depth_prior), triangulated at its poses first
+            when it has none (triangulate.with_points).
         overwrite: replace the outputs of a different earlier run in the output folder.
         finetune_minutes: first fine-tune the weights on the scene for this long (cached as OUT/finetune.pt).
         depth_format: "png16" (uint16 PNGs, scale in cameras.json) or "npy" (float32 scene units, NaN invalid).
@@ -118,6 +119,7 @@ def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, image
     return {"version": STATE_VERSION, "scene": str(scene_dir.resolve()), "images": images, "path": config.path,
             "frames": config.frames, "resolution": config.resolution, "views": config.views, "exact": config.exact,
             "checkpoint_sha256": checkpoint_sha256(checkpoint), "depth_format": config.depth_format,
+            **({} if config.sfm_depth else {"sfm_depth": False}),  # states written before the prior stay valid
             **({"finetune_minutes": config.finetune_minutes} if config.finetune_minutes is not None else {})}
 
 
@@ -175,6 +177,10 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     write_cameras_json(out_dir / CAMERAS_JSON, user_cams, near, far, scale, config.depth_format,
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               "normalization": similarity.to_json()})
+    if config.sfm_depth:
+        from .triangulate import with_points
+
+        scene = with_points(scene)
     renderer = ViewRenderer(model, scene, (path.cameras.height, path.cameras.width), config.views, config.device,
                             config.chunk, config.exact, config.sfm_depth)
     rendered, resumed, seconds, clipped = _render_frames(renderer, path, out_dir, similarity.scale, scale,

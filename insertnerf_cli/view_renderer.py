@@ -41,7 +41,7 @@ class ViewRenderer:
         views: reference views per image (a render() call may ask for another count).
         device, chunk, exact: as in RenderConfig (chunk None = DEFAULT_CHUNKS of the device).
         sfm_depth: guide the fine samples by the scene's SfM points where it has them (depth_prior), using only
-            the points that two views outside a frame's ``exclude`` observe.
+            the points that two views outside a frame's ``exclude`` and one of its references observe.
     """
 
     def __init__(self, model: torch.nn.Module, scene, size: tuple[int, int], views: int, device: str = "cpu",
@@ -57,7 +57,6 @@ class ViewRenderer:
         self.method = view_rule(scene.layout)
         self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
         self.sfm_depth = sfm_depth and scene.points is not None
-        self._points: tuple[frozenset[int], torch.Tensor] | None = None  # (excluded views, what the rest observe)
 
     def references(self, target_c2w: torch.Tensor, exclude: list[int], views: int | None = None) -> list[int]:
         from .views import nearest_views
@@ -92,20 +91,19 @@ class ViewRenderer:
         from .render import render_image
 
         refs = self.references(camera.c2w[0], exclude, views)
-        prior = self._prior(camera, exclude)
+        prior = self._prior(camera, exclude, refs)
         return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts,
                             prior), refs
 
-    def _prior(self, camera: Cameras, exclude: list[int]) -> torch.Tensor | None:
-        """[H, W] the SfM depth prior of ``camera`` from the points the views outside ``exclude`` observe (an
-        excluded view, such as eval's held-out photo, must not lend its own observations), or None."""
+    def _prior(self, camera: Cameras, exclude: list[int], refs: list[int]) -> torch.Tensor | None:
+        """[H, W] the SfM depth prior of ``camera``, or None: from the points that two views outside ``exclude``
+        observe (an excluded view, such as eval's held-out photo, must not lend its own observations) and one of
+        its references ``refs`` does (a point no nearby view sees is often hidden from the frame, and a sparse
+        cloud would paint the far side of an object into the splats)."""
         if not self.sfm_depth:
             return None
-        key = frozenset(exclude)
-        if self._points is None or self._points[0] != key:  # eval keeps one set; render --path input one a frame
-            allowed = [i for i in range(len(self.scene)) if i not in key]
-            self._points = (key, self.scene.points.seen_from(allowed))
-        points = self._points[1]
+        allowed = [i for i in range(len(self.scene)) if i not in set(exclude)]
+        points = self.scene.points.seen_from(allowed, near=refs)
         if not len(points):
             return None
         from .depth_prior import prior_depth

@@ -6,7 +6,9 @@ the public formats' own conventions (and pycolmap for COLMAP), never our readers
 """
 from __future__ import annotations
 
+import importlib.util
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -186,3 +188,13 @@ def write_dtu_idr(root: Path, known: KnownScene, scale: float = 2.0) -> Path:
     np.savez(root / "cameras.npz", **arrays)
     write_images(root / "image", known, [f"{i:06d}.png" for i in range(len(cams))])
     return root
+
+
+def bench_module(script: str = "poses_accuracy"):
+    """A bench script as a module (bench/poses_accuracy.py: a textured room, ray cast with embree)."""
+    path = Path(__file__).resolve().parents[1] / "bench" / f"{script}.py"
+    spec = importlib.util.spec_from_file_location(f"{script}_bench", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up while being created
+    spec.loader.exec_module(module)
+    return module

@@ -73,6 +73,10 @@ def test_points_seen_from_counts_only_the_allowed_views() -> None:
     assert len(points.seen_from([])) == 0
     assert len(ScenePoints(xyz).seen_from([0])) == 4  # unknown observers: every point
     assert points.subset_views([2, 0]).seen_from([0, 1]).tolist() == xyz[[0]].tolist()
+    # A target's references: only points one of them observes (view 2 sees points 0 and 3; 3 has one observer).
+    assert points.seen_from([0, 1, 2], near=[2]).tolist() == xyz[[0]].tolist()
+    assert points.seen_from([0, 1, 2], near=[0]).tolist() == xyz[[0, 1]].tolist()
+    assert len(points.seen_from([0, 1, 2], near=[])) == 0
 
 
 def test_a_colmap_scene_carries_its_points_into_normalised_units(tmp_path: Path) -> None:

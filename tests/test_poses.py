@@ -1,7 +1,6 @@
 """`insertnerf poses`: failures are one clear line with nothing half-written; previews and the pose check behave."""
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
 import sys
@@ -26,6 +25,7 @@ from insertnerf_cli.posecheck import (CheckLimits, PairMatches, check_relative_p
 from insertnerf_cli.poses_io import read_inputs
 from insertnerf_cli.preview import frustum_mesh, write_camera_frustums, write_point_cloud
 from insertnerf_cli.scenes import load_scene
+from scene_fixtures import bench_module
 
 
 def _noise_images(folder: Path, count: int, size: tuple[int, int] = (96, 128), seed: int = 0) -> list[Path]:
@@ -255,16 +255,6 @@ def test_point_cloud_round_trip(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------- a real SfM run
-def _bench_scene(script: str = "poses_accuracy"):
-    """A pose bench's renderer (bench/poses_accuracy.py: a textured room, ray cast with embree)."""
-    path = Path(__file__).resolve().parents[1] / "bench" / f"{script}.py"
-    spec = importlib.util.spec_from_file_location(f"{script}_bench", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while being created
-    spec.loader.exec_module(module)
-    return module
-
-
 def _relative_rotations(c2w: torch.Tensor) -> np.ndarray:
     """cam(i+1)-from-cam(i) rotations [N-1, 3, 3]: unchanged by any similarity of the world."""
     rot = c2w[:, :3, :3].numpy()
@@ -272,7 +262,7 @@ def _relative_rotations(c2w: torch.Tensor) -> np.ndarray:
 
 
 def test_real_sfm_on_rendered_views(tmp_path: Path) -> None:
-    bench = _bench_scene()
+    bench = bench_module()
     truth = bench.render_scene(views=8, size=200, arc_deg=70.0)
     (tmp_path / "photos").mkdir()
     # One photo WebP (COLMAP cannot decode it) and one named in Latin-1 (pycolmap takes UTF-8 text only): both are
@@ -315,7 +305,7 @@ def test_auto_matches_every_pair_when_sequential_matching_fails(tmp_path: Path) 
     """Photos that are not in video order: with more than exhaustive_limit of them, "auto" matches neighbours in
     name order first; when that places too few, it matches every pair and maps again (asked for "sequential"
     explicitly, the same photos fail)."""
-    truth = _bench_scene().render_scene(views=12, size=200, arc_deg=150.0)
+    truth = bench_module().render_scene(views=12, size=200, arc_deg=150.0)
     order = [0, 6, 1, 7, 2, 8, 3, 9, 4, 10, 5, 11]  # consecutive names 75 degrees apart
     (tmp_path / "photos").mkdir()
     for name_index, view in enumerate(order):
@@ -336,7 +326,7 @@ def test_auto_maps_a_folded_walk_again_as_a_chain(tmp_path: Path) -> None:
     the same after a half turn. Every pair matched, SfM lays the far half of the walk onto the near half (measured:
     rotations 137 deg off); the torn links between neighbours in name order give it away, and a chain of
     near neighbours alone maps the walk right."""
-    bench = _bench_scene("poses_fold")
+    bench = bench_module("poses_fold")
     cameras = bench.orbit_cameras(20, (192, 256), 3.5, fov_deg=60.0, height=lambda a: 1.6)
     images = bench.render(bench.fold_mesh(), cameras, bench.half_turn_colouring)
     (tmp_path / "photos").mkdir()
@@ -360,7 +350,7 @@ def test_mapping_runs_again_from_a_narrower_first_pair(tmp_path: Path) -> None:
     """LLFF's flower (photos 0.6-3 degrees apart) gave no model from COLMAP's first pair of 16 degrees and all 34
     photos from one of 4. Here an impossible first pair (400 degrees: COLMAP relaxes the angle itself a few times,
     and 80 still mapped) makes the first mapping fail the same way; the second one, from 4, places every view."""
-    truth = _bench_scene().render_scene(views=8, size=160, arc_deg=70.0)
+    truth = bench_module().render_scene(views=8, size=160, arc_deg=70.0)
     (tmp_path / "photos").mkdir()
     for i, img in enumerate(truth.images):
         cv2.imwrite(str(tmp_path / "photos" / f"v{i:02d}.png"), img[..., ::-1])

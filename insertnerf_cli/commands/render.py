@@ -41,9 +41,10 @@ def model_options(func: Callable[..., Any] | None = None, *, views_option: Calla
                      "pass runs on every 4th pixel, background pixels skip the fine pass, and pixels between "
                      "agreeing neighbours are blended from them (within 0.3 dB)."),
         click.option("--sfm-depth/--no-sfm-depth", default=True, show_default=True,
-                     help="Where the scene holds structure-from-motion points (a COLMAP model, or poses from "
-                     "`insertnerf poses`), send most fine samples to the depth of the points seen at each pixel "
-                     "(sharper on real photos; docs/model-card.md)."),
+                     help="Send most fine samples to the depth of the scene's structure-from-motion points seen "
+                     "at each pixel (sharper on real photos; docs/model-card.md). The points come from the scene's "
+                     "COLMAP model (poses from `insertnerf poses` have one); a scene without points gets them "
+                     "triangulated at its own poses first (COLMAP features, about 20-30 s for 30-120 photos)."),
     ]
     for option in reversed(options):
         func = option(func)

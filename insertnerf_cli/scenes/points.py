@@ -42,13 +42,21 @@ class ScenePoints:
             return self
         return ScenePoints(self.xyz, tuple(self.observed[i] for i in indices))
 
-    def seen_from(self, views: Sequence[int]) -> Tensor:
+    def seen_from(self, views: Sequence[int], near: Sequence[int] | None = None) -> Tensor:
         """[P', 3] the points that at least MIN_OBSERVERS of ``views`` observe: what those views alone would have
-        triangulated (every point when the observations are unknown)."""
+        triangulated (every point when the observations are unknown); with ``near``, only those that one of the
+        ``near`` views observes too (a target's nearest views: points they see are rarely hidden from it).
+        """
         if self.observed is None:
             return self.xyz
+        keep = self._count(views) >= MIN_OBSERVERS
+        if near is not None:
+            keep &= self._count(near) >= 1
+        return self.xyz[keep]
+
+    def _count(self, views: Sequence[int]) -> Tensor:
+        """[P] how many of ``views`` observe each point."""
         chosen = [self.observed[v] for v in views]
         if not chosen:
-            return self.xyz[:0]
-        counts = torch.bincount(torch.cat(chosen), minlength=len(self))
-        return self.xyz[counts >= MIN_OBSERVERS]
+            return torch.zeros(len(self), dtype=torch.int64)
+        return torch.bincount(torch.cat(chosen), minlength=len(self))

@@ -1,0 +1,174 @@
+"""Sparse points for a posed scene that came without them (a `transforms.json` or `poses_bounds.npy` alone):
+COLMAP's SIFT features, matched between each view and its nearest views, triangulated at the scene's own poses
+(pycolmap.triangulate_points, COLMAP's `point_triangulator`). Render and eval guide their fine samples by such
+points (depth_prior); the poses are never changed.
+"""
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pycolmap
+import torch
+
+from .cameras import Cameras
+from .colmap import pycolmap_log
+from .scenes.points import ScenePoints
+
+# Each view is matched with this many of its nearest views (view_rule of the layout): a point then has the
+# observers it needs (MIN_OBSERVERS) without the cost of every pair (a 100-view capture: 800 pairs, not 4,950).
+NEIGHBOURS = 8
+# SIFT on images no larger than this: the points guide samples to within a few per cent of depth, which
+# 1024 px keypoints locate far better than needed, at a quarter of full-resolution phone photos' cost.
+MAX_IMAGE_SIZE = 1024
+
+
+@dataclass(frozen=True)
+class TriangulateOptions:
+    """How `triangulate_points` works: pairs per view, SIFT image size, CPU threads (-1: all)."""
+
+    neighbours: int = NEIGHBOURS
+    max_image_size: int = MAX_IMAGE_SIZE
+    num_threads: int = -1
+
+
+def with_points(scene, views: Sequence[int] | None = None):
+    """``scene`` itself when it has SfM points, else the scene with points triangulated from ``views`` at its
+    poses; unchanged, with a one-line warning, when COLMAP finds none (too few features, images too small)."""
+    if scene.points is not None:
+        return scene
+    try:
+        points = triangulate_points(scene, views)
+    except (RuntimeError, ValueError, OSError) as error:  # pycolmap's failures: the render goes on without
+        points, reason = None, str(error).splitlines()[0] if str(error) else type(error).__name__
+    else:
+        reason = "no point was seen by two views"
+    if points is None or not len(points):
+        print(f"warning: no SfM points could be triangulated at the scene's poses ({reason}); rendering without "
+              "the depth prior.", file=sys.stderr, flush=True)
+        return scene
+    return replace(scene, points=points)
+
+
+def triangulate_points(scene, views: Sequence[int] | None = None,
+                       options: TriangulateOptions = TriangulateOptions(), quiet: bool = False) -> ScenePoints:
+    """The scene's sparse points, triangulated from ``views`` (default: all) at the scene's poses.
+
+    Args:
+        scene: a loaded Scene (scenes.base.Scene) whose image files are the photos its cameras describe.
+        views: indices of the views that may observe points (eval passes its references only, so that a held-out
+            photo lends nothing to its own render).
+    Returns:
+        ScenePoints in the scene's world, with each view's observations (empty for views outside ``views``).
+    """
+    chosen = sorted(set(range(len(scene)) if views is None else views))
+    if len(chosen) < 2:
+        raise ValueError(f"{len(chosen)} view(s) cannot triangulate a point")
+    started = time.perf_counter()
+    if not quiet:
+        print(f"triangulating SfM points at the scene's poses from {len(chosen)} views (the scene came without "
+              "them; --no-sfm-depth skips this) ...", file=sys.stderr, flush=True)
+    with tempfile.TemporaryDirectory(prefix="insertnerf-triangulate-") as tmp, pycolmap_log(False):
+        work = Path(tmp)
+        names = [scene.image_paths[i].relative_to(scene.root).as_posix() for i in chosen]
+        db_path = work / "database.db"
+        _extract(scene.root, names, db_path, options)
+        ids = _database_ids(db_path, names)
+        pairs = _neighbour_pairs(scene.cameras.subset(chosen), scene.layout, options.neighbours)
+        (work / "pairs.txt").write_text("".join(f"{names[a]} {names[b]}\n" for a, b in pairs))
+        matching = pycolmap.FeatureMatchingOptions(num_threads=options.num_threads)
+        pycolmap.match_image_pairs(db_path, matching_options=matching,
+                                   pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(work / "pairs.txt")),
+                                   device=pycolmap.Device.cpu)
+        rec = _posed_model(scene, chosen, ids, db_path)
+        (work / "model").mkdir()
+        rec = pycolmap.triangulate_points(rec, db_path, scene.root, work / "model", clear_points=True,
+                                          options=pycolmap.IncrementalPipelineOptions(num_threads=options.num_threads))
+    points = _scene_points(rec, [ids[n][0] for n in names], chosen, len(scene))
+    if not quiet:
+        print(f"triangulated {len(points)} points from {len(chosen)} views at the scene's poses "
+              f"({len(pairs)} pairs, {time.perf_counter() - started:.0f} s)", file=sys.stderr, flush=True)
+    return points
+
+
+def _extract(root: Path, names: list[str], db_path: Path, options: TriangulateOptions) -> None:
+    extraction = pycolmap.FeatureExtractionOptions(max_image_size=options.max_image_size,
+                                                   num_threads=options.num_threads)
+    pycolmap.extract_features(db_path, root, image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
+                              extraction_options=extraction, device=pycolmap.Device.cpu)
+
+
+def _database_ids(db_path: Path, names: list[str]) -> dict[str, tuple[int, int]]:
+    """Image name -> (image id, camera id) as feature extraction wrote them."""
+    with pycolmap.Database.open(db_path) as db:
+        ids = {img.name: (int(img.image_id), int(img.camera_id)) for img in db.read_all_images()}
+    missing = [n for n in names if n not in ids]
+    if missing:
+        raise RuntimeError(f"COLMAP read no features from {len(missing)} images (first: {missing[0]})")
+    return ids
+
+
+def _neighbour_pairs(cameras: Cameras, layout: str, neighbours: int) -> list[tuple[int, int]]:
+    """Each view with its ``neighbours`` nearest views by render's rule, every pair once (a < b)."""
+    from .views import nearest_views, view_rule
+
+    method = view_rule(layout)
+    pairs = set()
+    for a in range(len(cameras)):
+        for b in nearest_views(cameras.c2w[a], cameras.c2w, neighbours, method, exclude=[a]):
+            pairs.add((min(a, b), max(a, b)))
+    return sorted(pairs)
+
+
+def _colmap_camera(scene, index: int, camera_id: int) -> "pycolmap.Camera":
+    """The photo's own camera: the scene's pinhole, or with the lens distortion its loader removes."""
+    cam = scene.cameras.subset([index])
+    fx, fy, cx, cy = (float(v) for v in (cam.K[0, 0, 0], cam.K[0, 1, 1], cam.K[0, 0, 2], cam.K[0, 1, 2]))
+    distortion = scene.distortion[index] if scene.distortion is not None else None
+    if distortion is None:
+        model, params = "PINHOLE", [fx, fy, cx, cy]
+    else:  # the loader zooms the undistorted pinhole by `zoom`: the photo's focal lengths are the pinhole's / zoom
+        fx, fy = fx / distortion.zoom, fy / distortion.zoom
+        coeffs = list(distortion.coeffs)
+        if distortion.model == "fisheye":
+            model, params = "OPENCV_FISHEYE", [fx, fy, cx, cy] + (coeffs + [0.0] * 4)[:4]
+        elif len(coeffs) <= 4:
+            model, params = "OPENCV", [fx, fy, cx, cy] + (coeffs + [0.0] * 4)[:4]
+        else:
+            model, params = "FULL_OPENCV", [fx, fy, cx, cy] + (coeffs + [0.0] * 8)[:8]
+    return pycolmap.Camera(model=model, width=cam.width, height=cam.height, params=params, camera_id=camera_id)
+
+
+def _posed_model(scene, chosen: list[int], ids: dict[str, tuple[int, int]], db_path: Path) -> "pycolmap.Reconstruction":
+    """A COLMAP model of the chosen views at the scene's poses, with the database's image and camera ids (the
+    database's cameras are set to the same intrinsics, which triangulation reads from both)."""
+    rec = pycolmap.Reconstruction()
+    w2c = scene.cameras.w2c.double().cpu().numpy()
+    with pycolmap.Database.open(db_path) as db:
+        for index in chosen:
+            name = scene.image_paths[index].relative_to(scene.root).as_posix()
+            image_id, camera_id = ids[name]
+            camera = _colmap_camera(scene, index, camera_id)
+            db.update_camera(camera)
+            rec.add_camera_with_trivial_rig(camera)
+            pose = pycolmap.Rigid3d(w2c[index, :3, :4])
+            rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=camera_id, image_id=image_id),
+                                             pose)
+    return rec
+
+
+def _scene_points(rec: "pycolmap.Reconstruction", image_ids: list[int], chosen: list[int],
+                  views: int) -> ScenePoints:
+    point_ids = sorted(rec.points3D)
+    index = {int(pid): i for i, pid in enumerate(point_ids)}
+    xyz = np.array([rec.points3D[p].xyz for p in point_ids], dtype=np.float64).reshape(-1, 3)
+    observed = [torch.zeros(0, dtype=torch.int64) for _ in range(views)]
+    for view, image_id in zip(chosen, image_ids):
+        seen = [index[p.point3D_id] for p in rec.images[image_id].get_observation_points2D()]
+        observed[view] = torch.tensor(seen, dtype=torch.int64)
+    return ScenePoints(torch.from_numpy(xyz), tuple(observed))
