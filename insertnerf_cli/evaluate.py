@@ -137,16 +137,17 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
         print(warning, file=sys.stderr, flush=True)
     scene, _ = normalize_scene(scene)
     held = held_out_views(scene, config.max_views)
-    if config.sfm_depth:  # from the references alone: a held-out photo lends nothing to its own render
-        from .triangulate import with_points
-
-        scene = with_points(scene, [i for i in range(len(scene)) if i not in held])
     size = scene.size_for(config.resolution)
     if min(size) < SSIM_WINDOW:
         raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
     weights = checkpoint_path(config.checkpoint)
-    renderer = ViewRenderer(load_model(weights, config.device), scene, size, max(counts), config.device,
-                            config.chunk, config.exact, config.sfm_depth)
+    model = load_model(weights, config.device)  # a bad checkpoint fails before the triangulation's half minute
+    if config.sfm_depth:  # from the references alone: a held-out photo lends nothing to its own render
+        from .triangulate import with_points
+
+        scene = with_points(scene, [i for i in range(len(scene)) if i not in held])
+    renderer = ViewRenderer(model, scene, size, max(counts), config.device, config.chunk, config.exact,
+                            config.sfm_depth)
     prepare_side_by_sides(out_dir, held, counts)
     scores: dict[int, list[ViewScore]] = {n: [] for n in counts}
     for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):

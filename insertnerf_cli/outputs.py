@@ -135,11 +135,16 @@ def to_uint8(rgb: np.ndarray) -> np.ndarray:
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
-    """Write a uint8 [H, W, 3] or uint16 [H, W] PNG atomically (imageio keeps uint16 unchanged)."""
-    import imageio.v3 as iio
+    """Write a uint8 [H, W, 3] (RGB) or uint16 [H, W] PNG atomically (OpenCV keeps uint16 unchanged)."""
+    import cv2
 
-    # Encoded in memory, so a full disk fails in one plain write (atomic.py makes it a one-line error).
-    write_bytes(path, iio.imwrite("<bytes>", image, extension=".png"))
+    # Encoded in memory, so a full disk fails in one plain write (atomic.py makes it a one-line error). OpenCV,
+    # not imageio: a Ctrl-C inside imageio's Pillow plugin as it opened left an AttributeError in its clean-up
+    # instead of the KeyboardInterrupt (a traceback in 1 of 5 interrupted renders, bench/hostile.py).
+    ok, data = cv2.imencode(".png", image[..., ::-1] if image.ndim == 3 else image)
+    if not ok:
+        raise ValueError(f"OpenCV could not encode a {image.dtype} image of shape {image.shape} as PNG")
+    write_bytes(path, data.tobytes())
 
 
 def depth_scale_for(far: float) -> float:

@@ -76,9 +76,23 @@ def triangulate_points(scene, views: Sequence[int] | None = None,
     if len(chosen) < 2:
         raise ValueError(f"{len(chosen)} view(s) cannot triangulate a point")
     started = time.perf_counter()
-    if not quiet:
+    if not quiet:  # one line, finished when the points are: a failure's message then stands on its own lines
         print(f"triangulating SfM points at the scene's poses from {len(chosen)} views (the scene came without "
-              "them; --no-sfm-depth skips this) ...", file=sys.stderr, flush=True)
+              "them; --no-sfm-depth skips this) ...", end="", file=sys.stderr, flush=True)
+    try:
+        points, pairs = _triangulate(scene, chosen, options)
+    except BaseException:
+        if not quiet:
+            print(file=sys.stderr, flush=True)
+        raise
+    if not quiet:
+        print(f" {len(points)} points ({pairs} image pairs, {time.perf_counter() - started:.0f} s)", file=sys.stderr,
+              flush=True)
+    return points
+
+
+def _triangulate(scene, chosen: list[int], options: TriangulateOptions) -> tuple[ScenePoints, int]:
+    """(the points of the ``chosen`` views, how many image pairs were matched): COLMAP in a temporary folder."""
     with tempfile.TemporaryDirectory(prefix="insertnerf-triangulate-") as tmp, pycolmap_log(False):
         work = Path(tmp)
         names = [scene.image_paths[i].relative_to(scene.root).as_posix() for i in chosen]
@@ -95,15 +109,10 @@ def triangulate_points(scene, views: Sequence[int] | None = None,
                                    verification_options=verification, device=pycolmap.Device.cpu)
         rec = _posed_model(scene, chosen, ids, db_path)
         (work / "model").mkdir()
-        triangulation = pycolmap.IncrementalPipelineOptions(num_threads=ORDERED_THREADS,
-                                                               random_seed=RANDOM_SEED)
+        triangulation = pycolmap.IncrementalPipelineOptions(num_threads=ORDERED_THREADS, random_seed=RANDOM_SEED)
         rec = pycolmap.triangulate_points(rec, db_path, scene.root, work / "model", clear_points=True,
                                           options=triangulation)
-    points = _scene_points(rec, [ids[n][0] for n in names], chosen, len(scene))
-    if not quiet:
-        print(f"triangulated {len(points)} points from {len(chosen)} views at the scene's poses "
-              f"({len(pairs)} pairs, {time.perf_counter() - started:.0f} s)", file=sys.stderr, flush=True)
-    return points
+    return _scene_points(rec, [ids[n][0] for n in names], chosen, len(scene)), len(pairs)
 
 
 def _extract(root: Path, names: list[str], db_path: Path, options: TriangulateOptions) -> None:
