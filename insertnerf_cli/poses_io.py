@@ -168,7 +168,7 @@ def read_inputs(images_dir: Path, copy_dir: Path) -> InputImages:
                         "is assumed, so resize them to one size first.")
     (height, width), = sizes
     originals = tuple(printable_name(p.name) for p in paths)
-    if not rotated and not any(_needs_copy(p) for p in paths):
+    if not rotated and not any(needs_copy(p) for p in paths):
         return InputImages(images_dir, images_dir, tuple(p.name for p in paths), height, width, originals)
     names = colmap_copies(paths, set(rotated), copy_dir)
     return InputImages(images_dir, copy_dir, names, height, width, originals)
@@ -179,7 +179,7 @@ def printable_name(name: str) -> str:
     return "".join(f"%{ord(c) - 0xDC00:02X}" if 0xDC80 <= ord(c) <= 0xDCFF else c for c in name)
 
 
-def _needs_copy(path: Path) -> bool:
+def needs_copy(path: Path) -> bool:
     """COLMAP cannot take this file as it is: a format its decoder lacks, or a name that is not UTF-8 text."""
     return path.suffix.lower() in COLMAP_UNDECODABLE or printable_name(path.name) != path.name
 

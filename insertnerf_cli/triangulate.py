@@ -18,6 +18,8 @@ import torch
 
 from .cameras import Cameras
 from .colmap import pycolmap_log
+from .poses_io import colmap_copies, needs_copy
+from .scenes.images import exif_orientation
 from .scenes.points import ScenePoints
 
 # Each view is matched with this many of its nearest views (view_rule of the layout): a point then has the
@@ -95,9 +97,9 @@ def _triangulate(scene, chosen: list[int], options: TriangulateOptions) -> tuple
     """(the points of the ``chosen`` views, how many image pairs were matched): COLMAP in a temporary folder."""
     with tempfile.TemporaryDirectory(prefix="insertnerf-triangulate-") as tmp, pycolmap_log(False):
         work = Path(tmp)
-        names = [scene.image_paths[i].relative_to(scene.root).as_posix() for i in chosen]
+        folder, names = _colmap_images([scene.image_paths[i] for i in chosen], scene.root, work / "images")
         db_path = work / "database.db"
-        _extract(scene.root, names, db_path, options)
+        _extract(folder, names, db_path, options)
         ids = _database_ids(db_path, names)
         pairs = _neighbour_pairs(scene.cameras.subset(chosen), scene.layout, options.neighbours)
         (work / "pairs.txt").write_text("".join(f"{names[a]} {names[b]}\n" for a, b in pairs))
@@ -107,12 +109,22 @@ def _triangulate(scene, chosen: list[int], options: TriangulateOptions) -> tuple
         pairing = pycolmap.ImportedPairingOptions(match_list_path=str(work / "pairs.txt"))
         pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
                                    verification_options=verification, device=pycolmap.Device.cpu)
-        rec = _posed_model(scene, chosen, ids, db_path)
+        rec = _posed_model(scene, chosen, names, ids, db_path)
         (work / "model").mkdir()
         triangulation = pycolmap.IncrementalPipelineOptions(num_threads=ORDERED_THREADS, random_seed=RANDOM_SEED)
-        rec = pycolmap.triangulate_points(rec, db_path, scene.root, work / "model", clear_points=True,
+        rec = pycolmap.triangulate_points(rec, db_path, folder, work / "model", clear_points=True,
                                           options=triangulation)
     return _scene_points(rec, [ids[n][0] for n in names], chosen, len(scene)), len(pairs)
+
+
+def _colmap_images(paths: list[Path], root: Path, copies: Path) -> tuple[Path, list[str]]:
+    """(the folder COLMAP reads, each image's name in it): the scene's own files where COLMAP reads them as our
+    loader does, else copies in ``copies`` (as `insertnerf poses` makes them: WebP decoded, EXIF rotation applied,
+    names made UTF-8), so that the keypoints lie in the pixels the cameras describe."""
+    rotated = {p for p in paths if exif_orientation(p) != 1}
+    if not rotated and not any(needs_copy(p) for p in paths):
+        return root, [p.relative_to(root).as_posix() for p in paths]
+    return copies, list(colmap_copies(paths, rotated, copies))
 
 
 def _extract(root: Path, names: list[str], db_path: Path, options: TriangulateOptions) -> None:
@@ -163,14 +175,14 @@ def _colmap_camera(scene, index: int, camera_id: int) -> "pycolmap.Camera":
     return pycolmap.Camera(model=model, width=cam.width, height=cam.height, params=params, camera_id=camera_id)
 
 
-def _posed_model(scene, chosen: list[int], ids: dict[str, tuple[int, int]], db_path: Path) -> "pycolmap.Reconstruction":
+def _posed_model(scene, chosen: list[int], names: list[str], ids: dict[str, tuple[int, int]],
+                 db_path: Path) -> "pycolmap.Reconstruction":
     """A COLMAP model of the chosen views at the scene's poses, with the database's image and camera ids (the
     database's cameras are set to the same intrinsics, which triangulation reads from both)."""
     rec = pycolmap.Reconstruction()
     w2c = scene.cameras.w2c.double().cpu().numpy()
     with pycolmap.Database.open(db_path) as db:
-        for index in chosen:
-            name = scene.image_paths[index].relative_to(scene.root).as_posix()
+        for index, name in zip(chosen, names):
             image_id, camera_id = ids[name]
             camera = _colmap_camera(scene, index, camera_id)
             db.update_camera(camera)

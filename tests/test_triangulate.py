@@ -101,3 +101,19 @@ def test_eval_and_render_triangulate_a_posed_scene_without_points(room, tmp_path
                  "--views", 2, "--frames", 2)
     assert result.exit_code == 0, result.output
     assert "at the scene's poses from 8 views" in result.output
+
+
+def test_photos_colmap_cannot_read_are_triangulated_from_copies(room, tmp_path: Path) -> None:
+    """WebP (COLMAP has no decoder for it): copied as PNG into the temporary folder, never beside the scene."""
+    source = load_scene(room[0])
+    root = tmp_path / "webp"
+    (root / "images").mkdir(parents=True)
+    names = [f"images/view_{i:02d}.webp" for i in range(VIEWS)]
+    for name, path in zip(names, source.image_paths):
+        image = cv2.imread(str(path))
+        assert cv2.imwrite(str(root / name), image, [cv2.IMWRITE_WEBP_QUALITY, 101])  # lossless
+    write_nerfstudio_transforms(root / "transforms.json", source.cameras, names, near=0.5, far=8.0)
+    before = sorted(p.relative_to(root) for p in root.rglob("*"))
+    points = triangulate_points(load_scene(root), quiet=True)
+    assert len(points) > 200 and all(len(o) > 50 for o in points.observed)
+    assert sorted(p.relative_to(root) for p in root.rglob("*")) == before
