@@ -38,7 +38,8 @@ ORDERED_THREADS = 1
 
 @dataclass(frozen=True)
 class TriangulateOptions:
-    """How `triangulate_points` works: pairs per view, SIFT image size, CPU threads for matching (-1: all)."""
+    """How `triangulate_points` works: pairs per view, SIFT image size, CPU threads for feature extraction and
+    matching (-1: all)."""
 
     neighbours: int = NEIGHBOURS
     max_image_size: int = MAX_IMAGE_SIZE

@@ -46,7 +46,8 @@ class ViewRenderer:
         views: reference views per image (a render() call may ask for another count).
         device, chunk, exact: as in RenderConfig (chunk None = DEFAULT_CHUNKS of the device).
         sfm_depth: guide the fine samples by the scene's SfM points where it has them (depth_prior), using only
-            the points that two views outside a frame's ``exclude`` and one of its references observe.
+            the points that two views outside a frame's ``exclude`` and one of its PRIOR_VIEWS nearest references
+            observe.
     """
 
     def __init__(self, model: torch.nn.Module, scene, size: tuple[int, int], views: int, device: str = "cpu",
@@ -107,7 +108,8 @@ class ViewRenderer:
         hidden from the frame, and a sparse cloud would paint the far side of an object into the splats)."""
         if not self.sfm_depth:
             return None
-        allowed = [i for i in range(len(self.scene)) if i not in set(exclude)]
+        excluded = set(exclude)
+        allowed = [i for i in range(len(self.scene)) if i not in excluded]
         points = self.scene.points.seen_from(allowed, near=refs[:PRIOR_VIEWS])
         if not len(points):
             return None
