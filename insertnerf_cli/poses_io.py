@@ -168,10 +168,8 @@ def read_inputs(images_dir: Path, copy_dir: Path) -> InputImages:
                         "is assumed, so resize them to one size first.")
     (height, width), = sizes
     originals = tuple(printable_name(p.name) for p in paths)
-    if not rotated and not any(needs_copy(p) for p in paths):
-        return InputImages(images_dir, images_dir, tuple(p.name for p in paths), height, width, originals)
-    names = colmap_copies(paths, set(rotated), copy_dir)
-    return InputImages(images_dir, copy_dir, names, height, width, originals)
+    folder, names = colmap_readable(paths, set(rotated), images_dir, copy_dir)
+    return InputImages(images_dir, folder, names, height, width, originals)
 
 
 def printable_name(name: str) -> str:
@@ -179,9 +177,18 @@ def printable_name(name: str) -> str:
     return "".join(f"%{ord(c) - 0xDC00:02X}" if 0xDC80 <= ord(c) <= 0xDCFF else c for c in name)
 
 
-def needs_copy(path: Path) -> bool:
+def _needs_copy(path: Path) -> bool:
     """COLMAP cannot take this file as it is: a format its decoder lacks, or a name that is not UTF-8 text."""
     return path.suffix.lower() in COLMAP_UNDECODABLE or printable_name(path.name) != path.name
+
+
+def colmap_readable(paths: list[Path], rotated: set[Path], base: Path, copies: Path) -> tuple[Path, tuple[str, ...]]:
+    """(the folder COLMAP reads, each image's name in it, in the order of ``paths``): the files themselves, named
+    relative to ``base``, when COLMAP reads them as our loader does; else copies in ``copies`` (colmap_copies) for
+    all of them, ``rotated`` (an EXIF rotation COLMAP would ignore) among them."""
+    if not rotated and not any(_needs_copy(p) for p in paths):
+        return base, tuple(p.relative_to(base).as_posix() for p in paths)
+    return copies, colmap_copies(paths, rotated, copies)
 
 
 def colmap_copies(paths: list[Path], rotated: set[Path], folder: Path) -> tuple[str, ...]:

@@ -12,13 +12,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
-import numpy as np
 import pycolmap
 import torch
 
 from .cameras import Cameras
 from .colmap import pycolmap_log
-from .poses_io import colmap_copies, needs_copy
+from .poses_io import colmap_readable
+from .scenes.colmap_model import model_points
 from .scenes.images import exif_orientation
 from .scenes.points import ScenePoints
 
@@ -115,17 +115,20 @@ def _triangulate(scene, chosen: list[int], options: TriangulateOptions) -> tuple
         triangulation = pycolmap.IncrementalPipelineOptions(num_threads=ORDERED_THREADS, random_seed=RANDOM_SEED)
         rec = pycolmap.triangulate_points(rec, db_path, folder, work / "model", clear_points=True,
                                           options=triangulation)
-    return _scene_points(rec, [ids[n][0] for n in names], chosen, len(scene)), len(pairs)
+    # Views outside ``chosen`` are in no model: an id no image has leaves their observations empty.
+    image_ids = [pycolmap.INVALID_IMAGE_ID] * len(scene)
+    for view, name in zip(chosen, names):
+        image_ids[view] = ids[name][0]
+    points = model_points(rec, image_ids)
+    return (points if points is not None else ScenePoints(torch.zeros(0, 3, dtype=torch.float64))), len(pairs)
 
 
 def _colmap_images(paths: list[Path], root: Path, copies: Path) -> tuple[Path, list[str]]:
-    """(the folder COLMAP reads, each image's name in it): the scene's own files where COLMAP reads them as our
-    loader does, else copies in ``copies`` (as `insertnerf poses` makes them: WebP decoded, EXIF rotation applied,
-    names made UTF-8), so that the keypoints lie in the pixels the cameras describe."""
-    rotated = {p for p in paths if exif_orientation(p) != 1}
-    if not rotated and not any(needs_copy(p) for p in paths):
-        return root, [p.relative_to(root).as_posix() for p in paths]
-    return copies, list(colmap_copies(paths, rotated, copies))
+    """(the folder COLMAP reads, each image's name in it), as `insertnerf poses` hands photos to COLMAP (WebP
+    decoded, EXIF rotation applied, names made UTF-8), so that the keypoints lie in the pixels the cameras
+    describe."""
+    folder, names = colmap_readable(paths, {p for p in paths if exif_orientation(p) != 1}, root, copies)
+    return folder, list(names)
 
 
 def _extract(root: Path, names: list[str], db_path: Path, options: TriangulateOptions) -> None:
@@ -192,15 +195,3 @@ def _posed_model(scene, chosen: list[int], names: list[str], ids: dict[str, tupl
             rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=camera_id, image_id=image_id),
                                              pose)
     return rec
-
-
-def _scene_points(rec: "pycolmap.Reconstruction", image_ids: list[int], chosen: list[int],
-                  views: int) -> ScenePoints:
-    point_ids = sorted(rec.points3D)
-    index = {int(pid): i for i, pid in enumerate(point_ids)}
-    xyz = np.array([rec.points3D[p].xyz for p in point_ids], dtype=np.float64).reshape(-1, 3)
-    observed = [torch.zeros(0, dtype=torch.int64) for _ in range(views)]
-    for view, image_id in zip(chosen, image_ids):
-        seen = [index[p.point3D_id] for p in rec.images[image_id].get_observation_points2D()]
-        observed[view] = torch.tensor(seen, dtype=torch.int64)
-    return ScenePoints(torch.from_numpy(xyz), tuple(observed))
