@@ -6,8 +6,9 @@
 #   python3 -m pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl && export PYTHONPATH=/tmp/site
 #   bash scripts/gpu_warm_runs.sh cuda auto 1      # DEVICE, TRAIN_MINUTES (auto: until END_AT), SCALE of scene counts
 # RAYS=16384 (environment) for 5x the rays per second of the 4,096 that ran (docs/training-on-gpu.md).
-# SEED_SHIFT=N adds N to every synth seed (a fresh set); RUN_SPECS="NAME:FAST|FULL:LR:SEED[:SHARE] ..." picks the runs
-# (SHARE: train through bench/transient_train.py with transients in that share of the source views, round 15).
+# SEED_SHIFT=N adds N to every synth seed (a fresh set); RUN_SPECS="NAME:FAST|FULL:LR:SEED[:SHARE[:guide]] ..." picks
+# the runs (SHARE: train through bench/transient_train.py with transients in that share of the source views, round
+# 15; guide: train --guide-prior, round 20).
 # MORE=M (a second call on the still-warm machine): resume every run of the first call for M more minutes, pack again.
 # .whl holds trimesh and embreex for the GPU machine's Python (synth needs them; docs/training-on-gpu.md).
 set -u
@@ -55,7 +56,7 @@ SYN=$!
 ins synth $W/smoke --scenes 10 --views 12 --test-views 2 --resolution 120 --layout 360 --seed 7 --workers 2 > $W/smoke_syn.log 2>&1 \
   || { el "smoke synth failed"; tail -5 $W/smoke_syn.log; kill $SYN; exit 1; }
 for m in FAST FULL; do  # fail fast, with time left to mend and rerun, if the CUDA path breaks
-  ins train $W/smoke --out $W/smoke_$m ${!m} $COMMON --seed 0 --batch-scenes 2 --steps 4 --val-every 2 --ckpt-every 2 > $W/smoke_$m.log 2>&1 \
+  ins train $W/smoke --out $W/smoke_$m ${!m} $COMMON --guide-prior --seed 0 --batch-scenes 2 --steps 4 --val-every 2 --ckpt-every 2 > $W/smoke_$m.log 2>&1 \
     || { el "smoke $m failed"; tr '\r' '\n' < $W/smoke_$m.log | tail -25; kill $SYN; pkill -f "synth $W"; exit 1; }
   el "smoke $m ok: $(tr '\r' '\n' < $W/smoke_$m.log | grep -v '^\s*$' | tail -1)"
 done
@@ -65,8 +66,8 @@ el "mix: $(ls $W/mix | wc -l) scenes"
 if [ "$MIN" = auto ]; then MIN=$($PY -c "print(round(max(1.0, (${END_AT:-525} - $(( $(date +%s) - T0 )) - 30) / 60), 2))"); fi
 el "training minutes: $MIN"
 for spec in $RUN_SPECS; do
-  IFS=: read -r name model lr seed share <<< "$spec"; echo $MIN > $W/$name.minutes; echo "${share:-}" > $W/$name.share
-  trainer $name $W/mix --out $W/$name ${!model} $COMMON --seed $seed --lr $lr --steps 200000 --minutes $MIN --val-every 100000 --ckpt-every 250 > $W/$name.log 2>&1 &
+  IFS=: read -r name model lr seed share guide <<< "$spec"; echo $MIN > $W/$name.minutes; echo "${share:-}" > $W/$name.share
+  trainer $name $W/mix --out $W/$name ${!model} $COMMON ${guide:+--guide-prior} --seed $seed --lr $lr --steps 200000 --minutes $MIN --val-every 100000 --ckpt-every 250 > $W/$name.log 2>&1 &
 done
 sleep 60; nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader 2>/dev/null
 for r in $RUNS; do el "$r: $(tr '\r' '\n' < $W/$r.log | grep -v '^\s*$' | tail -1)"; done

@@ -26,6 +26,9 @@ from .common import device_option, overwrite_option, resolve_device, user_errors
               "[default: 8]")
 @click.option("--views-min", type=int, help="Draw each step's number of source views from VIEWS_MIN..--views, so "
               "the model serves any count `render --views` asks for (e.g. --views-min 4 --views 16).")
+@click.option("--guide-prior/--no-guide-prior", default=None, help="Place the fine samples as render does with a "
+              "scene's SfM points, from a sparse depth prior simulated on synth's exact depth (scenes without depth "
+              "files train as before).  [default: no-guide-prior]")
 @click.option("--batch-scenes", type=int, help="Scenes per step, each with --rays / B rays and its own source "
               "views (one batch).  [default: 1 on CPU, 4 on CUDA]")
 @click.option("--data-budget-mb", type=int, help="Keep the decoded training images on the training device up to "

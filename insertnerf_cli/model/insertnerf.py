@@ -7,6 +7,7 @@ from torch import Tensor, nn
 from ..config import ModelConfig
 from ..rays import Rays
 from ..compositing import Composite, composite, composite_weights
+from ..depth_prior import guide_weights
 from ..sampling import RaySamples, importance_samples, stratified_samples
 from .aggregate import ScaleAggregator, angular_prior, reweigh
 from .consistency import colour_variance, sharpen
@@ -63,8 +64,10 @@ class InsertNeRF(nn.Module):
         return EncodedViews(features=features, images=images, projection=projection_matrices(cameras),
                             centers=cameras.centers, height=height, width=width, reconstruction=recon)
 
-    def forward(self, encoded: EncodedViews, rays: Rays, train: bool) -> RenderOutput:
-        """Render R rays: stratified coarse pass, then an importance-sampled fine pass."""
+    def forward(self, encoded: EncodedViews, rays: Rays, train: bool, guide: Tensor | None = None) -> RenderOutput:
+        """Render R rays: stratified coarse pass, then an importance-sampled fine pass; with ``guide`` [R] (a
+        depth per ray, NaN where none) the fine samples follow the coarse weights guided to it as render's SfM
+        prior guides them (depth_prior.guide_weights)."""
         cfg = self.config
         rays = rays.to(device=self.background.device, dtype=self.background.dtype)
         backdrop = self.backdrop(encoded, rays)  # [R, 3] what the ray sees past its far bound
@@ -72,7 +75,8 @@ class InsertNeRF(nn.Module):
                                             in_disparity=cfg.sample_in_disparity)
         coarse, dynamic_coarse = self.render_pass(self.coarse_head, encoded, rays, coarse_samples, backdrop,
                                                   cfg.consistency_temperature_coarse)
-        fine_samples = importance_samples(coarse_samples, coarse.weights, cfg.samples_fine, jitter=train,
+        weights = coarse.weights if guide is None else guide_weights(coarse.weights.detach(), coarse_samples.t, guide)
+        fine_samples = importance_samples(coarse_samples, weights, cfg.samples_fine, jitter=train,
                                           near=rays.near, far=rays.far)
         fine, dynamic_fine = self.render_pass(self.fine_head, encoded, rays, fine_samples, backdrop,
                                               cfg.consistency_temperature_fine)

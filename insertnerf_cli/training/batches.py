@@ -21,6 +21,7 @@ from ..model.types import EncodedViews
 from ..rays import Rays, rays_from_pixels
 from ..views import ViewSampling
 from .data import ImageCache, TrainBatch
+from .guide import simulated_prior
 from .device_data import SizeGroup, TrainingSet, gather_depths, gather_images
 
 _LEVELS = 255.0
@@ -146,9 +147,10 @@ class BatchObjective(nn.Module):
     rendered from its own V views; the loss terms are the means over the B scenes (equal ray counts, so the
     colour terms equal the mean over all rays). B = 1 is exactly session.Objective."""
 
-    def __init__(self, model: InsertNeRF) -> None:
+    def __init__(self, model: InsertNeRF, guided: bool = False) -> None:
         super().__init__()
         self.model = model
+        self.guided = guided  # fine samples guided by a prior simulated from the true depth (training/guide.py)
 
     def forward(self, views: SourceViews, rays: Rays, target_rgb: Tensor, scenes: int,
                 target_depth: Tensor | None = None) -> LossTerms:
@@ -159,8 +161,9 @@ class BatchObjective(nn.Module):
         for b in range(scenes):
             part = encoded_group(encoded, b, per_view)
             chunk = slice(b * per_ray, (b + 1) * per_ray)
-            output = self.model(part, rays[chunk], train=True)
             depth = None if target_depth is None else target_depth[chunk]
+            guide = simulated_prior(depth) if self.guided and depth is not None else None
+            output = self.model(part, rays[chunk], train=True, guide=guide)
             terms.append(self.model.losses(output, target_rgb[chunk], part, rays[chunk], depth))
         if scenes == 1:
             return terms[0]

@@ -48,6 +48,8 @@ class TrainConfig:
             to a minute and needs a C++ compiler.
         views_min: the fewest source views a step draws (None: always model.num_views). Validation uses
             model.num_views.
+        guide_prior: place the fine samples as render does with a scene's SfM points, from a sparse prior
+            simulated on the true depth of scenes that have it (training/guide.py; needs depth files).
         init: a checkpoint whose weights the run starts from instead of a random initialisation (sample-axis
             tensors resampled when only the sample counts differ: training/warm_start.py); None: random.
     """
@@ -74,6 +76,7 @@ class TrainConfig:
     compile: bool = False
     init: str | None = None
     views_min: int | None = None
+    guide_prior: bool = False
 
     def __post_init__(self) -> None:
         try:
@@ -105,7 +108,7 @@ class TrainConfig:
 
 # Changing these on --resume keeps training valid but the run no longer matches an uninterrupted one.
 DATA_FIELDS = ("rays", "resolution", "seed", "lr", "lr_encoder", "lr_half_life", "lr_min", "val_scenes",
-               "batch_scenes", "views_min")
+               "batch_scenes", "views_min", "guide_prior")
 
 # Scenes per step when --batch-scenes is not given. CPU: measured (docs/benchmarks.md, issue 9). CUDA: not
 # measured yet (no GPU was lent to that work); 4 keeps B * V = 32 images per encoder call.

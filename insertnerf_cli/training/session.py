@@ -97,7 +97,7 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
     model = model.to(ctx.device)
     optimizer = torch.optim.Adam(param_groups(model, config))
     data = load_training_set(train, config.data_budget_mb, ctx.device, say, show_progress=ctx.is_main,
-                             with_depth=config.model.loss_depth_weight > 0)
+                             with_depth=config.model.loss_depth_weight > 0 or config.guide_prior)
     assert config.batch_scenes is not None  # fixed by config.with_device_defaults before the session
     usable = check_batch_scenes(data, config.batch_scenes, config.rays)
     session = Session(config, files, ctx, model, optimizer, np.random.default_rng([config.seed, ctx.rank]),
@@ -109,7 +109,7 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
         _restore(session, checkpoint)
     if config.compile:
         model.compile_aggregation()
-    session.objective = distributed.wrap(BatchObjective(model), ctx)  # after restoring: DDP broadcasts rank 0
+    session.objective = distributed.wrap(BatchObjective(model, config.guide_prior), ctx)  # after restoring: DDP broadcasts rank 0
     session.stream = StepStream(data, usable, session.generators, config.batch_scenes, config.model.num_views,
                                 config.rays, config.cache_mb * _BYTES_PER_MB, config.views_min)
     if ctx.is_main:
