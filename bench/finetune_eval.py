@@ -75,7 +75,7 @@ def score(scene: Path, checkpoint: Path | None, args: argparse.Namespace) -> dic
 def fine_tune(scene: Path, args: argparse.Namespace, marks: list[float], path_for) -> dict:
     """One run of --minutes with snapshots at ``marks``; its record (steps at each mark, speed, load)."""
     config = FinetuneConfig(minutes=args.minutes, rays=args.rays, lr=args.lr, train_encoder=args.train_encoder,
-                            lr_encoder=args.lr)
+                            lr_encoder=args.lr, seed=args.seed, sfm_depth=args.sfm_depth)
     load_before = os.getloadavg()
     steps_at: dict[float, int] = {}
     hook = snapshot_hook(marks, path_for)
@@ -130,6 +130,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared 2-core machine)")
     parser.add_argument("--device", default="cpu", choices=["auto", "cpu", "cuda"],
                         help="where to fine-tune and score (the command's --device)")
+    parser.add_argument("--seed", type=int, default=FinetuneConfig.seed, help="seed of the draws and the jitter")
+    parser.add_argument("--no-sfm-depth", dest="sfm_depth", action="store_false",
+                        help="fine-tune with the fine samples placed by the coarse pass alone (before round 20)")
     parser.add_argument("--tag", default="", help="suffix of the checkpoint names")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)

@@ -165,7 +165,8 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     scene, similarity, path = planned or _plan(posed_photos(photos, out_dir, created), config)
     if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
         model = load_model(finetuned(scene_dir if photos is None else out_dir / POSES_DIR, out_dir, checkpoint,
-                                     config.finetune_minutes, config.views, config.resolution, config.device),
+                                     config.finetune_minutes, config.views, config.resolution, config.device,
+                                     config.sfm_depth),
                            config.device)
     user_cams = similarity.inverse().apply_cameras(path.cameras)
     check_resumable(out_dir, user_cams)

@@ -58,8 +58,8 @@ def with_points(scene, views: Sequence[int] | None = None):
     else:
         reason = "no point was seen by two views"
     if points is None or not len(points):
-        print(f"warning: no SfM points could be triangulated at the scene's poses ({reason}); rendering without "
-              "the depth prior.", file=sys.stderr, flush=True)
+        print(f"warning: no SfM points could be triangulated at the scene's poses ({reason}); going on "
+              "without the depth prior.", file=sys.stderr, flush=True)
         return scene
     return replace(scene, points=points)
 

@@ -9,7 +9,6 @@ from pathlib import Path
 import torch
 
 from .cameras import Cameras
-from .config import DEFAULT_VIEWS
 from .errors import UserError
 
 # Rays per network call by device. CPU: small chunks stay in cache (render.render_image, bench/model_speed.py).
@@ -19,10 +18,6 @@ DEFAULT_CHUNKS = {"cpu": 128, "cuda": 4096}
 # Consecutive frames of a path mostly share their reference views: encodings are kept per view, for this many
 # times --views views, so a frame encodes only the views its predecessors did not use.
 ENCODED_VIEWS_KEPT = 2
-# The depth prior uses the points that a frame's nearest references (at most this many; render's default count)
-# observe: a point seen only from farther views is often hidden from the frame (round 19: at 16 views, capping at
-# 10 scored room 27.30 dB against 27.15 and mold_gold_cape 16.73 against 16.66; 6 scored within 0.07 dB of 10).
-PRIOR_VIEWS = DEFAULT_VIEWS
 
 
 def checkpoint_path(checkpoint: Path | None) -> Path:
@@ -45,9 +40,8 @@ class ViewRenderer:
         model: the generator; scene: the normalised Scene; size: (height, width) of the rendered images.
         views: reference views per image (a render() call may ask for another count).
         device, chunk, exact: as in RenderConfig (chunk None = DEFAULT_CHUNKS of the device).
-        sfm_depth: guide the fine samples by the scene's SfM points where it has them (depth_prior), using only
-            the points that two views outside a frame's ``exclude`` and one of its PRIOR_VIEWS nearest references
-            observe.
+        sfm_depth: guide the fine samples by the scene's SfM points where it has them (depth_prior.view_prior:
+            the points that two views outside a frame's ``exclude`` and one of its nearest references observe).
     """
 
     def __init__(self, model: torch.nn.Module, scene, size: tuple[int, int], views: int, device: str = "cpu",
@@ -102,17 +96,12 @@ class ViewRenderer:
                             prior), refs
 
     def _prior(self, camera: Cameras, exclude: list[int], refs: list[int]) -> torch.Tensor | None:
-        """[H, W] the SfM depth prior of ``camera``, or None: from the points that two views outside ``exclude``
-        observe (an excluded view, such as eval's held-out photo, must not lend its own observations) and one of
-        its PRIOR_VIEWS nearest references ``refs`` (nearest first) does (a point no nearby view sees is often
-        hidden from the frame, and a sparse cloud would paint the far side of an object into the splats)."""
+        """[H, W] the SfM depth prior of ``camera``, or None: depth_prior.view_prior of the views outside
+        ``exclude`` (eval's held-out photo must not lend its own observations) and the frame's references ``refs``
+        (nearest first)."""
         if not self.sfm_depth:
             return None
-        excluded = set(exclude)
-        allowed = [i for i in range(len(self.scene)) if i not in excluded]
-        points = self.scene.points.seen_from(allowed, near=refs[:PRIOR_VIEWS])
-        if not len(points):
-            return None
-        from .depth_prior import prior_depth
+        from .depth_prior import view_prior
 
-        return prior_depth(points, camera)
+        excluded = set(exclude)
+        return view_prior(self.scene.points, camera, [i for i in range(len(self.scene)) if i not in excluded], refs)

@@ -35,12 +35,15 @@ _DEFAULTS = FinetuneConfig()
 @click.option("--train-encoder", is_flag=True,
               help="Also train the image encoder (slower per step; by default it is frozen).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the draws.")
+@click.option("--sfm-depth/--no-sfm-depth", default=True, show_default=True,
+              help="Place the fine samples as render and eval do, around the depth of the scene's SfM points "
+              "(triangulated at its poses first when it has none): after 5 minutes flower +0.24 dB, room level.")
 @device_option
 @overwrite_option
 @user_errors
 def finetune_command(scene_dir: Path, out: Path, minutes: float | None, steps: int | None, base: Path | None,
-                     resolution: int, views: int, rays: int, lr: float, train_encoder: bool, seed: int, device: str,
-                     overwrite: bool) -> None:
+                     resolution: int, views: int, rays: int, lr: float, train_encoder: bool, seed: int,
+                     sfm_depth: bool, device: str, overwrite: bool) -> None:
     """Fine-tune the generator on SCENE_DIR's own photos and write the weights to --out.
 
     Each step renders pixels of one photo from its nearest other photos and corrects the network, as training
@@ -56,7 +59,8 @@ def finetune_command(scene_dir: Path, out: Path, minutes: float | None, steps: i
     if minutes is None and steps is None:
         minutes = _DEFAULT_MINUTES
     config = FinetuneConfig(minutes=minutes, steps=steps, rays=rays, lr=lr, train_encoder=train_encoder,
-                            lr_encoder=lr, views=views, resolution=resolution or None, seed=seed)
+                            lr_encoder=lr, views=views, resolution=resolution or None, seed=seed,
+                            sfm_depth=sfm_depth)
     result = finetune(scene_dir, out, config, resolve_device(device), base=base, overwrite=overwrite)
     click.echo(summary(result))
     if result.stopped == "interrupted":

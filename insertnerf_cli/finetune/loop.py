@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -24,7 +24,8 @@ from ..training.data import ImageCache, TrainScene, make_batch
 # Training's Ctrl-C rule (finish the step, save; a second Ctrl-C stops at once), shared rather than copied.
 from ..training.loop import _StopRequest
 from ..training.session import Objective
-from .data import FrozenFeatures, draw, finetune_scene
+from ..triangulate import with_points
+from .data import FrozenFeatures, TargetPriors, draw, finetune_scene
 
 Say = Callable[[str], None]
 _CACHE_BYTES = 1 << 30  # uint8 images at the fine-tuning size; a 256-px scene of 100 views needs ~20 MB
@@ -43,6 +44,8 @@ class FinetuneConfig:
         views: source views per step (eval and render use the nearest --views; default the same 10).
         resolution: long side of the images in pixels, as render/eval's --resolution (None = full size).
         seed: seeds the draws and the sample jitter.
+        sfm_depth: place the fine samples as render does, by the scene's SfM points (triangulated at its poses
+            from the usable views first when it has none); data.TargetPriors.
     """
 
     minutes: float | None = 5.0
@@ -54,6 +57,7 @@ class FinetuneConfig:
     views: int = DEFAULT_VIEWS
     resolution: int | None = DEFAULT_RESOLUTION
     seed: int = 0
+    sfm_depth: bool = True
 
     def __post_init__(self) -> None:
         if self.minutes is None and self.steps is None:
@@ -119,6 +123,8 @@ def finetune(scene_dir: str | Path, out: str | Path, config: FinetuneConfig, dev
     lock_output(out, "finetune", is_dir=False)
     checkpoint = read_checkpoint(base if base is not None else bundled_checkpoint())
     scene = finetune_scene(scene_dir, config.resolution)
+    if config.sfm_depth:  # from the usable views only: eval's held-out photos lend nothing, as in eval
+        scene = replace(scene, scene=with_points(scene.scene, list(scene.train_ids)))
     torch.manual_seed(config.seed)
     model = build_model(checkpoint, device)
     model.train()
@@ -143,18 +149,21 @@ class _Run:
         self.optimizer = torch.optim.Adam(_param_groups(model, config))
         self.frozen = None if config.train_encoder else FrozenFeatures(model, scene, self.cache)
         self.device = model.background.device
+        self.priors = TargetPriors(scene, self.device) if config.sfm_depth else None
         self.steps_done = 0
 
     def step(self) -> LossTerms:
         """Draw, render the target's rays from the sources, one Adam step; the loss terms (detached)."""
         d = draw(self.rng, self.scene, self.config.views, self.config.rays)
         batch = make_batch(self.scene, self.cache, d).to(self.device)
+        guide = None if self.priors is None else self.priors.guide(d.target, d.pixels)
         self.optimizer.zero_grad(set_to_none=True)
         if self.frozen is None:
-            terms = self.objective(batch.views, batch.rays, batch.target_rgb)
+            terms = self.objective(batch.views, batch.rays, batch.target_rgb, guide)
         else:
             encoded = self.frozen.select(d.sources)
-            terms = self.model.losses(self.model(encoded, batch.rays, train=True), batch.target_rgb, encoded)
+            terms = self.model.losses(self.model(encoded, batch.rays, train=True, guide=guide), batch.target_rgb,
+                                      encoded)
         total = float(terms.total.detach())  # also waits for the GPU, so the time budget counts the real work
         if not math.isfinite(total):
             raise UserError(f"fine-tuning diverged: the loss is {total} at step {self.steps_done + 1}; nothing was "

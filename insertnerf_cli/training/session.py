@@ -67,9 +67,10 @@ class Objective(nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, views: SourceViews, rays: Rays, target_rgb: Tensor) -> LossTerms:
+    def forward(self, views: SourceViews, rays: Rays, target_rgb: Tensor, guide: Tensor | None = None) -> LossTerms:
+        """``guide`` [R]: a depth per ray that the fine samples follow (InsertNeRF.forward), or None."""
         encoded = self.model.encode(views)
-        output = self.model(encoded, rays, train=True)
+        output = self.model(encoded, rays, train=True, guide=guide)
         return self.model.losses(output, target_rgb, encoded)
 
 

@@ -1,0 +1,56 @@
+"""Round 20: fine-tuning places its fine samples as render does, by the scene's SfM points (finetune.TargetPriors)."""
+from __future__ import annotations
+
+import pytest
+import torch
+from test_render_cli import make_checkpoint
+
+from insertnerf_cli.finetune import FinetuneConfig, finetune
+from insertnerf_cli.finetune import loop as finetune_loop
+from insertnerf_cli.finetune.data import TargetPriors, finetune_scene
+from scene_fixtures import known_scene, write_colmap
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.fixture(scope="module")
+def colmap_scene(tmp_path_factory):
+    return write_colmap(tmp_path_factory.mktemp("ftprior") / "scene", known_scene(9))
+
+
+def test_every_usable_view_gets_a_prior_at_its_points_depths(colmap_scene):
+    scene = finetune_scene(colmap_scene, 32)
+    priors = TargetPriors(scene, torch.device("cpu"))
+    assert set(priors.flat) == set(scene.train_ids)
+    points = scene.scene.points.xyz
+    for target in scene.train_ids:
+        camera = scene.cameras.subset([target]).to(dtype=torch.float64)
+        z = (points @ camera.w2c[0, :3, :3].T + camera.w2c[0, :3, 3])[:, 2]
+        prior = priors.flat[target]
+        seen = prior[torch.isfinite(prior)].double()
+        assert len(seen) > 0.2 * len(prior)
+        assert float(seen.min()) >= float(z.min()) - 1e-4 and float(seen.max()) <= float(z.max()) + 1e-4
+    pixels = torch.tensor([0, 5, 17])
+    torch.testing.assert_close(priors.guide(scene.train_ids[0], pixels), priors.flat[scene.train_ids[0]][pixels],
+                               equal_nan=True)
+
+
+def test_a_step_passes_the_targets_prior_to_the_model_unless_told_not_to(colmap_scene, tmp_path, monkeypatch):
+    base = make_checkpoint(tmp_path / "base.pt")
+    guides = []
+    real_forward = finetune_loop.InsertNeRF.forward
+
+    def recording_forward(self, encoded, rays, train, guide=None):
+        guides.append(guide)
+        return real_forward(self, encoded, rays, train, guide)
+
+    monkeypatch.setattr(finetune_loop.InsertNeRF, "forward", recording_forward)
+    for sfm_depth in (True, False):
+        guides.clear()
+        config = FinetuneConfig(minutes=None, steps=3, rays=16, views=3, resolution=32, sfm_depth=sfm_depth)
+        result = finetune(colmap_scene, tmp_path / f"ft_{sfm_depth}.pt", config, torch.device("cpu"), base=base)
+        assert result.steps == 3 and len(guides) == 3
+        if sfm_depth:
+            assert all(g is not None and g.shape == (16,) and torch.isfinite(g).any() for g in guides)
+        else:
+            assert all(g is None for g in guides)
