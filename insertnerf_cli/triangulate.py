@@ -48,20 +48,18 @@ class TriangulateOptions:
 
 def with_points(scene, views: Sequence[int] | None = None):
     """``scene`` itself when it has SfM points, else the scene with points triangulated from ``views`` at its
-    poses; unchanged, with a one-line warning, when COLMAP finds none (too few features, images too small)."""
+    poses; unchanged, saying so on the progress line (or on one warning line when COLMAP fails), when it finds
+    none (too few features, images too small)."""
     if scene.points is not None:
         return scene
     try:
         points = triangulate_points(scene, views)
     except (RuntimeError, ValueError, OSError) as error:  # pycolmap's failures: the render goes on without
-        points, reason = None, str(error).splitlines()[0] if str(error) else type(error).__name__
-    else:
-        reason = "no point was seen by two views"
-    if points is None or not len(points):
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         print(f"warning: no SfM points could be triangulated at the scene's poses ({reason}); going on "
               "without the depth prior.", file=sys.stderr, flush=True)
         return scene
-    return replace(scene, points=points)
+    return replace(scene, points=points) if len(points) else scene  # triangulate_points' line said so
 
 
 def triangulate_points(scene, views: Sequence[int] | None = None,
@@ -88,9 +86,10 @@ def triangulate_points(scene, views: Sequence[int] | None = None,
         if not quiet:
             print(file=sys.stderr, flush=True)
         raise
-    if not quiet:
-        print(f" {len(points)} points ({pairs} image pairs, {time.perf_counter() - started:.0f} s)", file=sys.stderr,
-              flush=True)
+    if not quiet:  # no point (plain or tiny photos) is said on the same line: one line in all
+        found = f"{len(points)} points" if len(points) else "no point seen by two views"
+        print(f" {found} ({pairs} image pairs, {time.perf_counter() - started:.0f} s)"
+              + ("" if len(points) else "; going on without the depth prior."), file=sys.stderr, flush=True)
     return points
 
 

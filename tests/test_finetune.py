@@ -130,7 +130,7 @@ def test_ctrl_c_on_the_command_exits_130_with_the_saved_file(tmp_path, base):
     proc.send_signal(signal.SIGINT)
     out_text, err_text = proc.communicate(timeout=60)
     assert proc.returncode == 130, err_text[-500:]
-    assert out.is_file() and "interrupted:" in out_text and f"--checkpoint {out}" in err_text
+    assert out.is_file() and "interrupted:" in out_text and f"--checkpoint {out}" in out_text
 
 
 def _wait_for_a_finished_step(proc: subprocess.Popen, limit_s: float = 120.0) -> None:

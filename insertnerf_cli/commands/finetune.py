@@ -62,12 +62,13 @@ def finetune_command(scene_dir: Path, out: Path, minutes: float | None, steps: i
                             lr_encoder=lr, views=views, resolution=resolution or None, seed=seed,
                             sfm_depth=sfm_depth)
     result = finetune(scene_dir, out, config, resolve_device(device), base=base, overwrite=overwrite)
-    click.echo(summary(result))
     if result.stopped == "interrupted":
-        if result.checkpoint is not None:
-            click.echo(f"Use it with render or eval --checkpoint {out}; to go on, pass it as --checkpoint to another "
-                       "finetune with a new --out.", err=True)
+        # One line with what to do next: the triangulation's and Ctrl-C's lines come before it.
+        hint = "" if result.checkpoint is None else (f". Use it with render or eval --checkpoint {out}; to go on, "
+                                                     "pass it as --checkpoint to another finetune with a new --out.")
+        click.echo(summary(result) + hint)
         raise SystemExit(130)
+    click.echo(summary(result))
 
 
 def summary(result: FinetuneResult) -> str:
