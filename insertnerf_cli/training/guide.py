@@ -27,7 +27,8 @@ def simulated_prior(depth: Tensor) -> Tensor:
     surface = torch.nan_to_num(depth, nan=NO_SURFACE) > NO_SURFACE
     keep = surface & (torch.rand(depth.shape, device=depth.device) < COVERAGE)
     noisy = depth * torch.exp(RELATIVE_ERROR * torch.randn(depth.shape, device=depth.device))
-    # A wrong prior: the depth of another ray of the same batch that hit a surface (its own when none did).
+    # A wrong prior: the depth of another ray of the same batch that hit a surface (its own when none did). The
+    # nonzero is one host sync a step: the guided GPU runs made 15.5-15.7k rays/s beside the control's 16.7k.
     donors = torch.nonzero(surface).flatten()
     if len(donors):
         other = depth[donors[torch.randint(len(donors), depth.shape, device=depth.device)]]
