@@ -62,13 +62,13 @@ def finetune_command(scene_dir: Path, out: Path, minutes: float | None, steps: i
                             lr_encoder=lr, views=views, resolution=resolution or None, seed=seed,
                             sfm_depth=sfm_depth)
     result = finetune(scene_dir, out, config, resolve_device(device), base=base, overwrite=overwrite)
-    if result.stopped == "interrupted":
-        # One line with what to do next: the triangulation's and Ctrl-C's lines come before it.
-        hint = "" if result.checkpoint is None else (f". Use it with render or eval --checkpoint {out}; to go on, "
-                                                     "pass it as --checkpoint to another finetune with a new --out.")
-        click.echo(summary(result) + hint)
+    interrupted = result.stopped == "interrupted"
+    # One line, with what to do next after a Ctrl-C: the triangulation's and Ctrl-C's lines come before it.
+    hint = (f". Use it with render or eval --checkpoint {out}; to go on, pass it as --checkpoint to another finetune "
+            "with a new --out.") if interrupted and result.checkpoint is not None else ""
+    click.echo(summary(result) + hint)
+    if interrupted:
         raise SystemExit(130)
-    click.echo(summary(result))
 
 
 def summary(result: FinetuneResult) -> str:
