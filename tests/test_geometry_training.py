@@ -92,12 +92,16 @@ def test_a_direction_no_view_sees_falls_back_to_the_background():
         assert torch.allclose(model.backdrop(model.encode(views), up)[0], torch.ones(3))
 
 
+def synth_root(tmp_path_factory, name: str, **options):
+    """A folder of 2 synth scenes of 8 views (1 held out) with their depth files; ``options`` as SynthOptions."""
+    root = tmp_path_factory.mktemp(name)
+    generate_dataset(root, SynthOptions(scenes=2, views=8, test_views=1, **options), workers=1)
+    return root
+
+
 @pytest.fixture(scope="module")
 def synth_set(tmp_path_factory):
-    root = tmp_path_factory.mktemp("synthdepth")
-    generate_dataset(root, SynthOptions(scenes=2, views=8, test_views=1, resolution=32, layout="mixed", seed=5),
-                     workers=1)
-    return root
+    return synth_root(tmp_path_factory, "synthdepth", resolution=32, layout="mixed", seed=5)
 
 
 def test_training_views_carry_synths_true_depth(synth_set):

@@ -11,7 +11,7 @@ from insertnerf_cli.rays import rays_from_pixels
 from insertnerf_cli.training import train
 from insertnerf_cli.training.guide import COVERAGE, RELATIVE_ERROR, WRONG, simulated_prior
 from model_fixtures import TINY, flat_views, orbit_cameras
-from test_geometry_training import synth_set  # noqa: F401  (the module's fixture of 2 synth scenes)
+from test_geometry_training import synth_root, synth_set  # noqa: F401  (synth_set: the module's fixture of 2 synth scenes)
 from test_train import small
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -71,3 +71,49 @@ def test_training_with_the_guide_runs_and_is_saved_with_the_run(synth_set, tmp_p
                                                       val_scenes=1, guide_prior=True), torch.device("cpu"))
     assert result.step == 2
     assert saved_train_config(tmp_path / "run" / "checkpoints" / "last.pt").guide_prior
+
+
+@pytest.fixture(scope="module")
+def textured_set(tmp_path_factory):
+    """Synth scenes at 64 px: enough pixels for a few corners per view (CORNERS_PER_PIXEL)."""
+    return synth_root(tmp_path_factory, "featureprior", resolution=64, layout="forward", seed=7)
+
+
+def feature_priors(root, budget_mb: int):
+    from insertnerf_cli.training.data import find_scenes
+    from insertnerf_cli.training.device_data import load_training_set
+    from insertnerf_cli.training.feature_prior import FeaturePriors
+
+    scenes = find_scenes(root, 64, print, show_progress=False)
+    data = load_training_set(scenes, budget_mb, torch.device("cpu"), print, show_progress=False, with_depth=True)
+    return data, FeaturePriors(data)
+
+
+def test_the_feature_prior_lies_on_the_true_surface_from_the_sources_corners_alone(textured_set):
+    data, priors = feature_priors(textured_set, 64)
+    g = data.groups[0]
+    pixels = torch.arange(g.height * g.width)[None]  # [1, H * W]
+    sources = torch.arange(1, int(g.n_train[0]))[None]  # the other training views of scene 0
+    prior = priors.step_prior(0, torch.tensor([0]), sources, pixels)
+    true = g.depths[0].reshape(-1)
+    given = torch.isfinite(prior) & (true > 0)
+    assert 0.2 < float(given.float().mean()) <= 1.0
+    assert float(((prior[given] - true[given]).abs() / true[given]).median()) < 0.1
+    # The target's own corners are never used (eval leaves the held-out photo out): with itself as its only
+    # source the target gets no prior at all.
+    assert torch.isnan(priors.step_prior(0, torch.tensor([0]), torch.tensor([[0, 0]]), pixels)).all()
+    # A set streamed from disk (budget 0) gives the same prior as one kept in memory.
+    streamed_data, streamed = feature_priors(textured_set, 0)
+    assert streamed_data.groups[0].images is None
+    again = streamed.step_prior(0, torch.tensor([0]), sources, pixels)
+    assert torch.equal(torch.isnan(again), torch.isnan(prior))
+    assert torch.allclose(again[given], prior[given])
+
+
+def test_training_with_the_feature_prior_runs_and_is_saved_with_the_run(textured_set, tmp_path):
+    from insertnerf_cli.training.config import saved_train_config
+
+    config = small(model=dataclasses.replace(TINY, num_views=4), steps=2, val_scenes=1, resolution=64,
+                   guide_prior=True, guide_from="features")
+    assert train(textured_set, tmp_path / "run", config, torch.device("cpu")).step == 2
+    assert saved_train_config(tmp_path / "run" / "checkpoints" / "last.pt").guide_from == "features"

@@ -29,6 +29,9 @@ from .common import device_option, overwrite_option, resolve_device, user_errors
 @click.option("--guide-prior/--no-guide-prior", default=None, help="Place the fine samples as render does with a "
               "scene's SfM points, from a sparse depth prior simulated on synth's exact depth (scenes without depth "
               "files train as before).  [default: no-guide-prior]")
+@click.option("--guide-from", type=click.Choice(["depth", "features"]), help="The guide's prior: each surface ray's "
+              "own depth spoilt at random, or the source views' corners lifted by that depth and splatted into the "
+              "target as render splats SfM points.  [default: depth]")
 @click.option("--batch-scenes", type=int, help="Scenes per step, each with --rays / B rays and its own source "
               "views (one batch).  [default: 1 on CPU, 4 on CUDA]")
 @click.option("--data-budget-mb", type=int, help="Keep the decoded training images on the training device up to "
@@ -80,6 +83,8 @@ def train(dataset_dir: Path, run_dir: Path, device: str, resume: bool, overwrite
         base = with_overrides(base, {}, {"model": read_model_config(model_config)})
     if flags["init"] is not None:
         flags["init"] = str(flags["init"].resolve())
+    if flags["guide_from"] is not None and flags["guide_prior"] is None:
+        flags["guide_prior"] = True  # naming the guide's prior asks for the guide
     config = with_overrides(base, model_fields, {name.replace("-", "_"): value for name, value in flags.items()})
     result = train_generator(dataset_dir, run_dir, config, torch_device, resume=resume, overwrite=overwrite)
     if result.main_process:

@@ -21,6 +21,7 @@ from ..model.types import EncodedViews
 from ..rays import Rays, rays_from_pixels
 from ..views import ViewSampling
 from .data import ImageCache, TrainBatch
+from .feature_prior import FeaturePriors
 from .guide import simulated_prior
 from .device_data import SizeGroup, TrainingSet, gather_depths, gather_images
 
@@ -118,8 +119,10 @@ def _pool_rule(sampling: ViewSampling, device: torch.device) -> tuple[Tensor, Te
             torch.tensor(sampling.pool_probs, dtype=torch.float64, device=device).cumsum(0).float())
 
 
-def make_step_batch(data: TrainingSet, draw: StepDraw, cache: ImageCache) -> TrainBatch:
-    """The model inputs of a step on the training device: B * V source views, B * R / B rays and colours."""
+def make_step_batch(data: TrainingSet, draw: StepDraw, cache: ImageCache,
+                    priors: FeaturePriors | None = None) -> TrainBatch:
+    """The model inputs of a step on the training device: B * V source views, B * R / B rays and colours (and
+    with ``priors`` each ray's prior depth from its sources' features)."""
     g: SizeGroup = data.groups[draw.group]
     batch, per_scene = draw.pixels.shape
     images = gather_images(data, g, torch.cat([draw.sources, draw.targets[:, None]], dim=1), cache)
@@ -131,7 +134,8 @@ def make_step_batch(data: TrainingSet, draw: StepDraw, cache: ImageCache) -> Tra
     rays = rays_from_pixels(Cameras(g.K[t], g.c2w[t], g.height, g.width), uv, g.near[t], g.far[t])
     views = SourceViews(sources, Cameras(g.K[s], g.c2w[s], g.height, g.width))
     depth = gather_depths(data, g, t, draw.pixels).reshape(-1) if data.with_depth else None  # [B * R / B]
-    return TrainBatch(views, rays, target_rgb.reshape(batch * per_scene, 3), depth)
+    guide = None if priors is None else priors.step_prior(draw.group, t, draw.sources, draw.pixels)
+    return TrainBatch(views, rays, target_rgb.reshape(batch * per_scene, 3), depth, guide)
 
 
 def encoded_group(encoded: EncodedViews, index: int, size: int) -> EncodedViews:
@@ -153,8 +157,9 @@ class BatchObjective(nn.Module):
         self.guided = guided  # fine samples guided by a prior simulated from the true depth (training/guide.py)
 
     def forward(self, views: SourceViews, rays: Rays, target_rgb: Tensor, scenes: int,
-                target_depth: Tensor | None = None) -> LossTerms:
-        """Loss terms of B = ``scenes`` scenes; ``target_depth`` [R] true depths (None: no depth term)."""
+                target_depth: Tensor | None = None, guide: Tensor | None = None) -> LossTerms:
+        """Loss terms of B = ``scenes`` scenes; ``target_depth`` [R] true depths (None: no depth term);
+        ``guide`` [R] the batch's own prior depths (feature priors), which replace the simulated one."""
         encoded = self.model.encode(views)
         per_view, per_ray = len(views) // scenes, len(rays) // scenes
         terms = []
@@ -162,8 +167,11 @@ class BatchObjective(nn.Module):
             part = encoded_group(encoded, b, per_view)
             chunk = slice(b * per_ray, (b + 1) * per_ray)
             depth = None if target_depth is None else target_depth[chunk]
-            guide = simulated_prior(depth) if self.guided and depth is not None else None
-            output = self.model(part, rays[chunk], train=True, guide=guide)
+            if guide is not None:
+                ray_guide = guide[chunk]
+            else:
+                ray_guide = simulated_prior(depth) if self.guided and depth is not None else None
+            output = self.model(part, rays[chunk], train=True, guide=ray_guide)
             terms.append(self.model.losses(output, target_rgb[chunk], part, rays[chunk], depth))
         if scenes == 1:
             return terms[0]
@@ -186,8 +194,10 @@ class StepStream:
     """
 
     def __init__(self, data: TrainingSet, usable: list[int], generators: DrawGenerators, batch_scenes: int,
-                 num_views: int, rays: int, cache_bytes: int, views_min: int | None = None) -> None:
+                 num_views: int, rays: int, cache_bytes: int, views_min: int | None = None,
+                 priors: FeaturePriors | None = None) -> None:
         self.data, self.usable, self.generators = data, usable, generators
+        self.priors = priors
         self.shape = (batch_scenes, num_views, rays)
         self.views_min = views_min
         self._cache = ImageCache(cache_bytes)
@@ -197,7 +207,7 @@ class StepStream:
     def next(self) -> tuple[StepDraw, TrainBatch]:
         if self._pool is None:
             draw = self._draw()
-            return draw, make_step_batch(self.data, draw, self._cache)
+            return draw, make_step_batch(self.data, draw, self._cache, self.priors)
         if self._pending is None:
             self._pending = self._prefetch()
         _, draw, batch = self._pending
@@ -222,4 +232,4 @@ class StepStream:
         assert self._pool is not None
         before = {k: v.clone() for k, v in self.generators.state().items()}
         draw = self._draw()
-        return before, draw, self._pool.submit(make_step_batch, self.data, draw, self._cache)
+        return before, draw, self._pool.submit(make_step_batch, self.data, draw, self._cache, self.priors)

@@ -50,6 +50,9 @@ class TrainConfig:
             model.num_views.
         guide_prior: place the fine samples as render does with a scene's SfM points, from a sparse prior
             simulated on the true depth of scenes that have it (training/guide.py; needs depth files).
+        guide_from: the guide's prior: "depth", each surface ray's own true depth spoilt at random
+            (training/guide.py), or "features", the sources' corners lifted by the true depth and splatted into
+            the target as render splats SfM points (training/feature_prior.py).
         init: a checkpoint whose weights the run starts from instead of a random initialisation (sample-axis
             tensors resampled when only the sample counts differ: training/warm_start.py); None: random.
     """
@@ -77,6 +80,7 @@ class TrainConfig:
     init: str | None = None
     views_min: int | None = None
     guide_prior: bool = False
+    guide_from: Literal["depth", "features"] = "depth"
 
     def __post_init__(self) -> None:
         try:
@@ -108,7 +112,7 @@ class TrainConfig:
 
 # Changing these on --resume keeps training valid but the run no longer matches an uninterrupted one.
 DATA_FIELDS = ("rays", "resolution", "seed", "lr", "lr_encoder", "lr_half_life", "lr_min", "val_scenes",
-               "batch_scenes", "views_min", "guide_prior")
+               "batch_scenes", "views_min", "guide_prior", "guide_from")
 
 # Scenes per step when --batch-scenes is not given. CPU: measured (docs/benchmarks.md, issue 9). CUDA: not
 # measured yet (no GPU was lent to that work); 4 keeps B * V = 32 images per encoder call.

@@ -59,10 +59,12 @@ class TrainBatch:
     rays: Rays  # [R]
     target_rgb: Tensor  # [R, 3]
     target_depth: Tensor | None = None  # [R]
+    guide: Tensor | None = None  # [R] a prior depth per ray made from features (training/feature_prior.py)
 
     def to(self, device: torch.device) -> "TrainBatch":
         depth = None if self.target_depth is None else self.target_depth.to(device)
-        return TrainBatch(self.views.to(device), self.rays.to(device), self.target_rgb.to(device), depth)
+        guide = None if self.guide is None else self.guide.to(device)
+        return TrainBatch(self.views.to(device), self.rays.to(device), self.target_rgb.to(device), depth, guide)
 
 
 @dataclass(frozen=True)

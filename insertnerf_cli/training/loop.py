@@ -226,7 +226,7 @@ def _train_step(s: Session, divergence: _Divergence) -> LossTerms:
     s.optimizer.zero_grad(set_to_none=True)
     try:
         with torch.autocast(s.ctx.device.type, dtype=torch.bfloat16, enabled=s.config.precision == "bf16"):
-            terms = s.objective(batch.views, batch.rays, batch.target_rgb, scenes, batch.target_depth)
+            terms = s.objective(batch.views, batch.rays, batch.target_rgb, scenes, batch.target_depth, batch.guide)
     except Exception as err:  # --compile is opt-in: torch's compiler failing is one line, not its stack
         if not (s.config.compile and type(err).__module__.startswith(("torch._dynamo", "torch._inductor"))):
             raise

@@ -25,6 +25,7 @@ from .data import (ImageCache, TrainScene, ViewDraw, check_view_counts, find_sce
                    validation_draws)
 from .device_data import TrainingSet, load_training_set
 from .distributed import DistContext
+from .feature_prior import FeaturePriors
 from .rng import capture_rng, restore_rng
 from .run_dir import (OWNER, RunFiles, check_run_dir, claim_run, clear_run, read_splits, truncate_metrics,
                       write_run_config, write_splits)
@@ -111,8 +112,9 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
     if config.compile:
         model.compile_aggregation()
     session.objective = distributed.wrap(BatchObjective(model, config.guide_prior), ctx)  # after restoring: DDP broadcasts rank 0
+    priors = FeaturePriors(data) if config.guide_prior and config.guide_from == "features" else None
     session.stream = StepStream(data, usable, session.generators, config.batch_scenes, config.model.num_views,
-                                config.rays, config.cache_mb * _BYTES_PER_MB, config.views_min)
+                                config.rays, config.cache_mb * _BYTES_PER_MB, config.views_min, priors)
     if ctx.is_main:
         _prepare_files(session, dataset_dir, resume, overwrite, ([s.name for s in train], [s.name for s in val]))
     distributed.barrier(ctx)
