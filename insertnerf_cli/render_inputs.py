@@ -75,12 +75,14 @@ def posed_photos(photos: Photos, out_dir: Path, created: bool):
 
 
 def finetuned(scene_dir: Path, out_dir: Path, checkpoint: Path, minutes: float, views: int,
-              resolution: int | None, device: str, sfm_depth: bool = True) -> Path:
+              resolution: int | None, device: str, sfm_depth: bool = True, points=None) -> Path:
     """The weights `render --finetune M` renders with: fine-tuned for M minutes at the render's resolution and
-    number of reference views, kept in OUT and reused by a later run with the same inputs."""
+    number of reference views, kept in OUT and reused by a later run with the same inputs. ``points``: the
+    render's SfM points of the normalised scene (scenes.points.ScenePoints), so the fine-tune need not
+    triangulate again (None: it does when it must)."""
     from .finetune import FinetuneConfig, cached_finetune
     from .finetune.render_cache import RECORD, WEIGHTS
 
     OutputRecord(out_dir, RENDER_OWNER).claim(WEIGHTS, RECORD)
     ft = FinetuneConfig(minutes=minutes, views=views, resolution=resolution, sfm_depth=sfm_depth)
-    return cached_finetune(scene_dir, out_dir, checkpoint, ft, torch.device(device))
+    return cached_finetune(scene_dir, out_dir, checkpoint, ft, torch.device(device), points)

@@ -8,6 +8,7 @@ from test_render_cli import make_checkpoint
 from insertnerf_cli.finetune import FinetuneConfig, finetune
 from insertnerf_cli.finetune import loop as finetune_loop
 from insertnerf_cli.finetune.data import TargetPriors, finetune_scene
+from insertnerf_cli.scenes.points import ScenePoints
 from scene_fixtures import known_scene, write_colmap
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -54,3 +55,23 @@ def test_a_step_passes_the_targets_prior_to_the_model_unless_told_not_to(colmap_
             assert all(g is not None and g.shape == (16,) and torch.isfinite(g).any() for g in guides)
         else:
             assert all(g is None for g in guides)
+
+
+def test_points_a_caller_already_has_are_used_instead_of_the_scenes_own(colmap_scene, tmp_path, monkeypatch):
+    """render --finetune triangulates once and hands its points on; the fine-tune must use them."""
+    base = make_checkpoint(tmp_path / "base.pt")
+    own = finetune_scene(colmap_scene, 32).scene.points
+    given = ScenePoints(own.xyz + 0.01, own.observed)
+    seen = []
+
+    class RecordingPriors(TargetPriors):
+        def __init__(self, scene, device):
+            seen.append(scene.scene.points)
+            super().__init__(scene, device)
+
+    monkeypatch.setattr(finetune_loop, "TargetPriors", RecordingPriors)
+    config = FinetuneConfig(minutes=None, steps=1, rays=16, views=3, resolution=32)
+    finetune(colmap_scene, tmp_path / "given.pt", config, torch.device("cpu"), base=base, points=given)
+    finetune(colmap_scene, tmp_path / "own.pt", config, torch.device("cpu"), base=base)
+    assert seen[0] is given
+    torch.testing.assert_close(seen[1].xyz, own.xyz)

@@ -19,6 +19,7 @@ from ..config import DEFAULT_RESOLUTION, DEFAULT_VIEWS, ModelConfig
 from ..errors import UserError
 from ..lock import lock_output, releases_output_locks
 from ..outdir import check_output
+from ..scenes.points import ScenePoints
 from ..model import InsertNeRF, LossTerms
 from ..training.data import ImageCache, TrainScene, make_batch
 # Training's Ctrl-C rule (finish the step, save; a second Ctrl-C stops at once), shared rather than copied.
@@ -109,11 +110,14 @@ def check_out_file(out: Path, scene_dir: Path, overwrite: bool, base: Path | Non
 @releases_output_locks
 def finetune(scene_dir: str | Path, out: str | Path, config: FinetuneConfig, device: torch.device,
              base: Path | None = None, overwrite: bool = False, on_step: Callable[[Progress], None] | None = None,
-             say: Say | None = None) -> FinetuneResult:
+             say: Say | None = None, points: ScenePoints | None = None) -> FinetuneResult:
     """Fine-tune ``base`` (default: the bundled generator) on the scene in ``scene_dir``; write ``out``.
 
     Args:
         on_step: called after every step (e.g. to save snapshots); its time is not counted in the budget.
+        points: SfM points of the normalised scene that a caller already has (render --finetune triangulates
+            once from every view): the prior's rule counts only the usable views' observations (TargetPriors), so
+            eval's held-out photos still lend nothing. None: the scene's own, else triangulated here.
     Raises:
         UserError: bad --out, unreadable scene or checkpoint, too few usable views, or a diverging loss.
     """
@@ -124,7 +128,8 @@ def finetune(scene_dir: str | Path, out: str | Path, config: FinetuneConfig, dev
     checkpoint = read_checkpoint(base if base is not None else bundled_checkpoint())
     scene = finetune_scene(scene_dir, config.resolution)
     if config.sfm_depth:  # from the usable views only: eval's held-out photos lend nothing, as in eval
-        scene = replace(scene, scene=with_points(scene.scene, list(scene.train_ids)))
+        given = scene.scene if points is None else replace(scene.scene, points=points)
+        scene = replace(scene, scene=with_points(given, list(scene.train_ids)))
     torch.manual_seed(config.seed)
     model = build_model(checkpoint, device)
     model.train()

@@ -22,9 +22,9 @@ RECORD = "finetune.json"
 
 
 def cached_finetune(scene_dir: Path, out_dir: Path, base: Path, config: FinetuneConfig,
-                    device: torch.device) -> Path:
+                    device: torch.device, points=None) -> Path:
     """OUT/finetune.pt fine-tuned from ``base`` on ``scene_dir`` with ``config``, made now unless a completed
-    earlier run with the same inputs left it there.
+    earlier run with the same inputs left it there (``points``: as finetune's).
 
     Raises:
         KeyboardInterrupt: Ctrl-C stopped the fine-tune (the partial weights are not recorded as finished).
@@ -37,7 +37,7 @@ def cached_finetune(scene_dir: Path, out_dir: Path, base: Path, config: Finetune
         print(f"reusing the fine-tuned weights in {weights} (same scene, base and settings)", file=sys.stderr)
         return weights
     record.unlink(missing_ok=True)
-    result = finetune(scene_dir, weights, config, device, base=base, overwrite=True)
+    result = finetune(scene_dir, weights, config, device, base=base, overwrite=True, points=points)
     if result.stopped == "interrupted" or result.checkpoint is None:
         raise KeyboardInterrupt
     write_json(record, {"key": key, "sha256": checkpoint_sha256(weights), "steps": result.steps,
