@@ -114,14 +114,15 @@ def set_variant(variant: str) -> None:
     SETTINGS.update(mode=mode, tol=float(tol or 0.15))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(patched_render=render, description: str = __doc__) -> None:
+    """The probe's command line, with ``patched_render`` (a ViewRenderer.render that sets STATE["maps"])."""
+    parser = argparse.ArgumentParser(description=description.splitlines()[0])
     parser.add_argument("--variants", default="off,colour:0.15", help="off, colour:TOL or all:TOL, comma-separated")
     add_eval_arguments(parser)
     parser.add_argument("--per-view", action="store_true", help="also print each held-out view's PSNR")
     args = parser.parse_args()
     InsertNeRF.observe = observe
-    ViewRenderer.render = render
+    ViewRenderer.render = patched_render
     score_variants(args, args.variants, set_variant, args.per_view)
 
 
