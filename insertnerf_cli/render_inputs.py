@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 
@@ -13,6 +14,9 @@ from .errors import UserError
 from .outdir import OutputRecord, remove_if_empty
 from .outputs import OWNER as RENDER_OWNER
 from .outputs import POSES_DIR
+
+if TYPE_CHECKING:
+    from .scenes.points import ScenePoints
 
 # COLMAP's own project layout keeps the photos here (beside database.db and sparse/ once it has run).
 PROJECT_IMAGES = "images"
@@ -75,10 +79,11 @@ def posed_photos(photos: Photos, out_dir: Path, created: bool):
 
 
 def finetuned(scene_dir: Path, out_dir: Path, checkpoint: Path, minutes: float, views: int,
-              resolution: int | None, device: str, sfm_depth: bool = True, points=None) -> Path:
+              resolution: int | None, device: str, sfm_depth: bool = True,
+              points: ScenePoints | None = None) -> Path:
     """The weights `render --finetune M` renders with: fine-tuned for M minutes at the render's resolution and
     number of reference views, kept in OUT and reused by a later run with the same inputs. ``points``: the
-    render's SfM points of the normalised scene (scenes.points.ScenePoints), so the fine-tune need not
+    render's SfM points of the normalised scene, so the fine-tune need not
     triangulate again (None: it does when it must)."""
     from .finetune import FinetuneConfig, cached_finetune
     from .finetune.render_cache import RECORD, WEIGHTS

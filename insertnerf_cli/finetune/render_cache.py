@@ -15,6 +15,7 @@ import torch
 from ..atomic import write_json
 from ..checkpoint import checkpoint_sha256
 from ..config import config_to_json
+from ..scenes.points import ScenePoints
 from .loop import FinetuneConfig, finetune
 
 WEIGHTS = "finetune.pt"
@@ -22,7 +23,7 @@ RECORD = "finetune.json"
 
 
 def cached_finetune(scene_dir: Path, out_dir: Path, base: Path, config: FinetuneConfig,
-                    device: torch.device, points=None) -> Path:
+                    device: torch.device, points: ScenePoints | None = None) -> Path:
     """OUT/finetune.pt fine-tuned from ``base`` on ``scene_dir`` with ``config``, made now unless a completed
     earlier run with the same inputs left it there (``points``: as finetune's).
 
