@@ -138,13 +138,6 @@ def _plan(scene, config: RenderConfig):
     return scene, similarity, path
 
 
-def _with_points(scene):
-    """The scene with SfM points (triangulate.with_points; itself when it has them)."""
-    from .triangulate import with_points
-
-    return with_points(scene)
-
-
 @releases_output_locks
 def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfig) -> RenderSummary:
     """Render a camera path of the scene in ``scene_dir`` into ``out_dir`` (see outputs.py for the files).
@@ -170,15 +163,17 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     lock_output(out_dir, RENDER_OWNER)  # one writer per folder (lock.py)
     prepare_out_dir(out_dir, state, config.overwrite)
     scene, similarity, path = planned or _plan(posed_photos(photos, out_dir, created), config)
+    user_cams = similarity.inverse().apply_cameras(path.cameras)
+    check_resumable(out_dir, user_cams)  # before the long work: triangulating, fine-tuning
+    if config.sfm_depth:  # once: the fine-tune's prior takes the same points (it counts its usable views' only)
+        from .triangulate import with_points
+
+        scene = with_points(scene)
     if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
-        if config.sfm_depth:  # once, for the fine-tune and the render (the fine-tune's prior filters by view)
-            scene = _with_points(scene)
         model = load_model(finetuned(scene_dir if photos is None else out_dir / POSES_DIR, out_dir, checkpoint,
                                      config.finetune_minutes, config.views, config.resolution, config.device,
                                      config.sfm_depth, scene.points),
                            config.device)
-    user_cams = similarity.inverse().apply_cameras(path.cameras)
-    check_resumable(out_dir, user_cams)
     extra = [INDEX_HTML] + ([POINTCLOUD_PLY] if config.pointcloud_points is not None else [])
     claim_render_outputs(out_dir, len(path), config.depth_format, *extra)
     write_state(out_dir, state)
@@ -187,8 +182,6 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     write_cameras_json(out_dir / CAMERAS_JSON, user_cams, near, far, scale, config.depth_format,
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               "normalization": similarity.to_json()})
-    if config.sfm_depth:
-        scene = _with_points(scene)
     renderer = ViewRenderer(model, scene, (path.cameras.height, path.cameras.width), config.views, config.device,
                             config.chunk, config.exact, config.sfm_depth)
     rendered, resumed, seconds, clipped = _render_frames(renderer, path, out_dir, similarity.scale, scale,
