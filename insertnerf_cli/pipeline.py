@@ -170,9 +170,11 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
 
         scene = with_points(scene)
     if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
+        # Where the render's triangulation found no point, the fine-tune's (from fewer photos) would not either:
+        # it trains without the prior instead of trying again and warning twice.
         model = load_model(finetuned(scene_dir if photos is None else out_dir / POSES_DIR, out_dir, checkpoint,
                                      config.finetune_minutes, config.views, config.resolution, config.device,
-                                     config.sfm_depth, scene.points),
+                                     config.sfm_depth and scene.points is not None, scene.points),
                            config.device)
     extra = [INDEX_HTML] + ([POINTCLOUD_PLY] if config.pointcloud_points is not None else [])
     claim_render_outputs(out_dir, len(path), config.depth_format, *extra)
