@@ -29,13 +29,15 @@ from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 
 def reference_points_depth(renderer: ViewRenderer, index: int, exclude: list[int]) -> torch.Tensor:
     """[1, h, w] depth map of reference ``index`` from the SfM points it observes (FAR where none reaches)."""
-    key = (str(renderer.scene.root), index, tuple(sorted(exclude)))
+    reach = vp.SETTINGS["reach"]
+    key = (str(renderer.scene.root), index, tuple(sorted(exclude)), reach)
     if key not in vp.STATE["cache"]:
         scene = renderer.scene
         camera = scene.cameras.subset([index]).rescale(*scene.size_for(vp.LOW))
         allowed = [i for i in range(len(scene)) if i not in set(exclude)]
         points = scene.points.seen_from(allowed, near=[index])
-        depth = prior_depth(points, camera) if len(points) else torch.full((camera.height, camera.width), vp.FAR)
+        depth = prior_depth(points, camera, None if reach is None else reach / vp.LOW) if len(points) \
+            else torch.full((camera.height, camera.width), vp.FAR)
         vp.STATE["cache"][key] = torch.nan_to_num(depth, nan=vp.FAR).float()[None]
     return vp.STATE["cache"][key]
 

@@ -37,7 +37,7 @@ from insertnerf_cli.views import nearest_views  # noqa: E402
 from view_set_probe import add_eval_arguments, score_variants  # noqa: E402
 
 LOW, OPAQUE, FAR = 128, 0.5, 1e6  # depth-map long side (px), opacity of a surface, depth of an empty pixel
-SETTINGS = {"mode": "off", "tol": 0.15}
+SETTINGS = {"mode": "off", "tol": 0.15, "reach": None}
 STATE: dict = {"maps": None, "cache": {}}
 
 
@@ -110,14 +110,16 @@ def observe(self, encoded, rays, samples, colour=True, variance=False):
 
 
 def set_variant(variant: str) -> None:
-    mode, _, tol = variant.partition(":")
-    SETTINGS.update(mode=mode, tol=float(tol or 0.15))
+    mode, _, rest = variant.partition(":")
+    tol, _, reach = rest.partition(":")
+    SETTINGS.update(mode=mode, tol=float(tol or 0.15), reach=int(reach) if reach else None)
 
 
 def main(patched_render=render, description: str = __doc__) -> None:
     """The probe's command line, with ``patched_render`` (a ViewRenderer.render that sets STATE["maps"])."""
     parser = argparse.ArgumentParser(description=description.splitlines()[0])
-    parser.add_argument("--variants", default="off,colour:0.15", help="off, colour:TOL or all:TOL, comma-separated")
+    parser.add_argument("--variants", default="off,colour:0.15", help="off, colour:TOL or all:TOL, comma-separated; sfm_visibility_probe also takes MODE:TOL:REACH "
+                        "(the maps' fill reach in px at their 128 px)")
     add_eval_arguments(parser)
     parser.add_argument("--per-view", action="store_true", help="also print each held-out view's PSNR")
     args = parser.parse_args()

@@ -49,16 +49,17 @@ def view_prior(points: "ScenePoints", camera: Cameras, allowed: Sequence[int], r
     return prior_depth(seen, camera) if len(seen) else None
 
 
-def prior_depth(points: Tensor, camera: Cameras) -> Tensor:
+def prior_depth(points: Tensor, camera: Cameras, reach_fraction: float | None = None) -> Tensor:
     """[H, W] camera-z depth of the nearest point splatted at each pixel of ``camera`` (1 camera), carried into
-    empty pixels from the nearest splat within reach; NaN elsewhere. ``points`` [P, 3] are world positions."""
+    empty pixels from the nearest splat within reach (``reach_fraction`` of the long side, default
+    REACH_FRACTION; 0 carries none); NaN elsewhere. ``points`` [P, 3] are world positions."""
     check_shape("points", points, (None, 3))
     if len(camera) != 1:
         raise ValueError(f"prior_depth projects into one camera, got {len(camera)}")
     height, width = camera.height, camera.width
     long_side = max(height, width)
     splat = max(1, round(SPLAT_FRACTION * long_side))
-    reach = max(1, round(REACH_FRACTION * long_side))
+    reach = max(1, round(REACH_FRACTION * long_side)) if reach_fraction is None else round(reach_fraction * long_side)
     uv, z = camera.to(device="cpu", dtype=torch.float64).project(points.to(device="cpu", dtype=torch.float64))
     front = z[0] > 1e-9  # uv is meaningless behind the camera
     depth = _splat(uv[0][front], z[0][front], height, width, splat)
