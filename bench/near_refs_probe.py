@@ -10,7 +10,6 @@ of where the views curve breaks, patched in this process only (ViewRenderer.refe
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -18,7 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 from insertnerf_cli.views import view_distances  # noqa: E402
-from view_set_probe import add_eval_arguments, score_variants  # noqa: E402
+from view_set_probe import variants_main  # noqa: E402
 
 MIN_KEPT = 3
 SETTINGS = {"ratio": None}
@@ -42,13 +41,10 @@ def set_variant(variant: str) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--variants", default="off,ratio:2")
-    add_eval_arguments(parser)
-    parser.add_argument("--per-view", action="store_true", help="also print each held-out view's PSNR")
-    args = parser.parse_args()
-    ViewRenderer.references = references
-    score_variants(args, args.variants, set_variant, args.per_view)
+    def patch() -> None:
+        ViewRenderer.references = references
+
+    variants_main(__doc__, "off,ratio:2", set_variant, patch)
 
 
 if __name__ == "__main__":

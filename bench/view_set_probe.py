@@ -108,6 +108,18 @@ def score_variants(args: argparse.Namespace, variants: str, apply, per_view: boo
             print_run(variant, capture, run_eval(args.root / capture, EvalConfig(views=counts)), per_view, references)
 
 
+def variants_main(description: str, default: str, apply, patch, variants_help: str | None = None) -> None:
+    """A probe's command line: --variants (default ``default``), the eval arguments and --per-view; ``patch()``
+    installs the probe's patches, then each variant is applied and scored (score_variants)."""
+    parser = argparse.ArgumentParser(description=description.splitlines()[0])
+    parser.add_argument("--variants", default=default, help=variants_help)
+    add_eval_arguments(parser)
+    parser.add_argument("--per-view", action="store_true", help="also print each held-out view's PSNR")
+    args = parser.parse_args()
+    patch()
+    score_variants(args, args.variants, apply, args.per_view)
+
+
 def set_rule(rule: str) -> None:
     name, _, weight = rule.partition(":")
     RULE.update(name=name, weight=float(weight or 0.0))

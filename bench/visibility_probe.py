@@ -17,7 +17,6 @@ InsertNeRF.observe and ViewRenderer.render are patched in this process only (the
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -34,7 +33,7 @@ from insertnerf_cli.model.types import SampleFeatures  # noqa: E402
 from insertnerf_cli.render import render_image  # noqa: E402
 from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 from insertnerf_cli.views import nearest_views  # noqa: E402
-from view_set_probe import add_eval_arguments, score_variants  # noqa: E402
+from view_set_probe import variants_main  # noqa: E402
 
 LOW, OPAQUE, FAR = 128, 0.5, 1e6  # depth-map long side (px), opacity of a surface, depth of an empty pixel
 SETTINGS = {"mode": "off", "tol": 0.15, "reach": None}
@@ -117,15 +116,13 @@ def set_variant(variant: str) -> None:
 
 def main(patched_render=render, description: str = __doc__) -> None:
     """The probe's command line, with ``patched_render`` (a ViewRenderer.render that sets STATE["maps"])."""
-    parser = argparse.ArgumentParser(description=description.splitlines()[0])
-    parser.add_argument("--variants", default="off,colour:0.15", help="off, colour:TOL or all:TOL, comma-separated; sfm_visibility_probe also takes MODE:TOL:REACH "
-                        "(the maps' fill reach in px at their 128 px)")
-    add_eval_arguments(parser)
-    parser.add_argument("--per-view", action="store_true", help="also print each held-out view's PSNR")
-    args = parser.parse_args()
-    InsertNeRF.observe = observe
-    ViewRenderer.render = patched_render
-    score_variants(args, args.variants, set_variant, args.per_view)
+    def patch() -> None:
+        InsertNeRF.observe = observe
+        ViewRenderer.render = patched_render
+
+    variants_main(description, "off,colour:0.15", set_variant, patch,
+                  "off, colour:TOL or all:TOL, comma-separated; sfm_visibility_probe also takes MODE:TOL:REACH (the "
+                  "maps' fill reach in px at their 128 px)")
 
 
 if __name__ == "__main__":
