@@ -18,6 +18,19 @@ DEFAULT_CHUNKS = {"cpu": 128, "cuda": 4096}
 # Consecutive frames of a path mostly share their reference views: encodings are kept per view, for this many
 # times --views views, so a frame encodes only the views its predecessors did not use.
 ENCODED_VIEWS_KEPT = 2
+# Reference colours are looked up in the photos at up to this many times the frame's size (never above their own):
+# a bilinear lookup at the frame's size blurs each colour over two frame pixels. Issue 27, round 23: room +0.35 to
+# +0.41 dB and flower +0.45 at 10 views with 1.5 or 2; beer and mold_gold_cape within 0.02 dB (docs/model-card.md).
+COLOUR_SCALE = 2.0
+
+
+def colour_size(size: tuple[int, int], photo: tuple[int, int], scale: float) -> tuple[int, int] | None:
+    """(height, width) at which the references' colours are looked up for frames of ``size``: ``scale`` times
+    it, at most the photos' own ``photo`` size; None where that is no finer than ``size``."""
+    factor = min(scale, photo[0] / size[0], photo[1] / size[1])
+    if factor <= 1.0:
+        return None
+    return round(size[0] * factor), round(size[1] * factor)
 
 
 def checkpoint_path(checkpoint: Path | None) -> Path:
@@ -42,12 +55,16 @@ class ViewRenderer:
         device, chunk, exact: as in RenderConfig (chunk None = DEFAULT_CHUNKS of the device).
         sfm_depth: guide the fine samples by the scene's SfM points where it has them (depth_prior.view_prior:
             the points that two views outside a frame's ``exclude`` and one of its nearest references observe).
+        colour_scale: look the reference colours up in the photos at up to this many times ``size`` (1: at
+            ``size``, in the images the U-Net encodes).
     """
 
     def __init__(self, model: torch.nn.Module, scene, size: tuple[int, int], views: int, device: str = "cpu",
-                 chunk: int | None = None, exact: bool = False, sfm_depth: bool = True) -> None:
+                 chunk: int | None = None, exact: bool = False, sfm_depth: bool = True,
+                 colour_scale: float = COLOUR_SCALE) -> None:
         self.model = model
         self.scene, self.size, self.k = scene, size, views
+        self.colour_size = colour_size(size, (scene.cameras.height, scene.cameras.width), colour_scale)
         self.chunk = chunk or DEFAULT_CHUNKS.get(torch.device(device).type, DEFAULT_CHUNKS["cpu"])
         from .render import EXACT, Shortcuts
 
@@ -77,6 +94,9 @@ class ViewRenderer:
             views = SourceViews(images, cams).to(device=param.device, dtype=param.dtype)
             with torch.inference_mode():
                 encoded = self.model.encode(views)
+            if self.colour_size is not None:
+                photos, _ = self.scene.load_views(missing, *self.colour_size)  # [V, Hc, Wc, 3]
+                encoded = encoded.with_colours(photos.permute(0, 3, 1, 2))
             for row, index in enumerate(missing):
                 self.cache[index] = encoded.select([row])
         for index in key:

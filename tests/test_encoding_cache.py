@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from insertnerf_cli.model import EncodedViews, InsertNeRF, SourceViews
-from insertnerf_cli.view_renderer import ViewRenderer
+from insertnerf_cli.view_renderer import ViewRenderer, colour_size
 from insertnerf_cli.scenes import load_scene, normalize_scene
 from model_fixtures import TINY, sphere_views  # noqa: F401
 from scene_fixtures import known_scene, write_blender
@@ -51,3 +51,18 @@ def test_renderer_encodes_each_view_once_while_frames_share_views(tmp_path):
     images, cams = scene.load_views([1, 2, 3], 16, 16)
     with torch.no_grad():
         _close(second, encode(SourceViews(images, cams)))
+
+
+def test_colours_come_from_the_photos_at_up_to_twice_the_frame_size(tmp_path):
+    assert colour_size((16, 24), (64, 96), 2.0) == (32, 48)
+    assert colour_size((16, 24), (20, 30), 2.0) == (20, 30)  # never above the photos' own size
+    assert colour_size((16, 24), (16, 24), 2.0) is None and colour_size((16, 24), (64, 96), 1.0) is None
+    torch.manual_seed(0)
+    scene, _ = normalize_scene(load_scene(write_blender(tmp_path / "scene", known_scene(n=4))))
+    model = InsertNeRF(TINY).eval()
+    h, w = scene.cameras.height // 2, scene.cameras.width // 2
+    encoded = ViewRenderer(model, scene, (h, w), views=2)._encoded([3, 1])
+    photos, _ = scene.load_views([1, 3], 2 * h, 2 * w)
+    torch.testing.assert_close(encoded.colours, photos.permute(0, 3, 1, 2))
+    assert (encoded.height, encoded.width) == (h, w)
+    assert ViewRenderer(model, scene, (h, w), views=2, colour_scale=1.0)._encoded([3, 1]).colours is None

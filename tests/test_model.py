@@ -10,7 +10,7 @@ import torch
 
 from insertnerf_cli.config import ModelConfig, config_from_json, config_to_json
 from insertnerf_cli.errors import UserError
-from insertnerf_cli.model import InsertNeRF, SourceViews
+from insertnerf_cli.model import EncodedViews, InsertNeRF, SourceViews
 from insertnerf_cli.model.aggregate import ScaleAggregator, masked_softmax, weighted_moments
 from insertnerf_cli.model.encoder import UNetEncoder
 from insertnerf_cli.model.filter import SamplingFilter
@@ -67,6 +67,30 @@ def test_projection_returns_the_colour_at_the_pixel_and_masks_unseen_points():
     assert seen.mask[0, 0].tolist() == [1, 1, 1, 0]
     assert torch.all(seen.colours[0, :, 3] == 0) and all(torch.all(f[0, :, 3] == 0) for f in seen.features)
     assert seen.ray_diff.shape == (3, 4, 4) and torch.all(seen.cos.abs() <= 1 + 1e-5)
+
+
+def test_projection_reads_colours_from_the_finer_photos_where_given():
+    torch.manual_seed(0)
+    model = InsertNeRF(TINY).eval()
+    cams = orbit_cameras(3, 20)
+    with torch.no_grad():
+        encoded = model.encode(SourceViews(torch.rand(3, 20, 20, 3), cams))
+    finer = torch.rand(3, 3, 40, 40)  # the same views' photos at twice the size
+    rows, cols = torch.tensor([3, 21, 38]), torch.tensor([5, 30, 0])  # pixels of the finer photo
+    uv = torch.stack([(cols + 0.5) / 2, (rows + 0.5) / 2], -1).float()[None]  # their centres in view 0's pixels
+    points = cams.subset([0]).unproject(uv, torch.full((1, 3), 2.5))[0][:, None]  # [R=3, S=1, 3]
+    plain = project_samples(encoded, points, torch.randn(3, 3))
+    seen = project_samples(encoded.with_colours(finer), points, torch.randn(3, 3))
+    torch.testing.assert_close(seen.colours[0], finer[0, :, rows, cols], atol=1e-5, rtol=1e-5)
+    assert not torch.allclose(plain.colours[0], seen.colours[0], atol=1e-2)
+    torch.testing.assert_close(seen.mask, plain.mask)  # which views see a sample does not change
+    for a, b in zip(seen.features, plain.features):
+        torch.testing.assert_close(a, b)
+    outside = (seen.mask == 0).expand_as(seen.colours)
+    assert torch.all(seen.colours[outside] == 0)
+    kept = encoded.with_colours(finer).select([2, 0])
+    torch.testing.assert_close(kept.colours, finer[[2, 0]])
+    assert EncodedViews.join([kept, encoded.with_colours(finer).select([1])]).colours.shape == (3, 3, 40, 40)
 
 
 def test_masked_softmax_and_moments():

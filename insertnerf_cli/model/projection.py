@@ -91,8 +91,19 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor) -
     grid = grid.transpose(1, 2)[:, None]  # [V, 1, P, 2]
     features = tuple(_sample(f, grid) for f in encoded.features)
     centers = encoded.centers.to(points)
-    return Projected(features, _sample(encoded.images, grid), valid.to(points.dtype),
+    return Projected(features, _colours(encoded, uv, valid, grid), valid.to(points.dtype),
                      _ray_diff(centers, flat, directions, samples))
+
+
+def _colours(encoded: EncodedViews, uv: Tensor, valid: Tensor, grid: Tensor) -> Tensor:
+    """[V, 3, P] reference colours at pixel positions uv [V, 2, P] (valid [V, 1, P]): from ``encoded.colours``
+    where it holds the photos at a finer size (normalised to the real image, which it spans exactly), else from the
+    padded images at ``grid``."""
+    if encoded.colours is None:
+        return _sample(encoded.images, grid)
+    scale = torch.tensor([2.0 / encoded.width, 2.0 / encoded.height], dtype=uv.dtype, device=uv.device)[:, None]
+    fine = torch.where(valid, uv * scale - 1.0, torch.full_like(uv, _OUTSIDE)).transpose(1, 2)[:, None]
+    return _sample(encoded.colours, fine)
 
 
 def pixel_coordinates(projection: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:

@@ -1,7 +1,7 @@
 """The typed containers that cross the generator's boundaries (glossary: V views, R rays, S samples, C channels)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import torch
@@ -48,6 +48,10 @@ class EncodedViews:
         centers: [V, 3] camera centres.
         height, width: the real image size H, W (pixels beyond it are padding and count as outside).
         reconstruction: [V, 3, H, W] the backbone decoder's rebuild of the images (training only, else None).
+        colours: [V, 3, Hc, Wc] the same photos at a finer size (unpadded) where a reference's colour is looked
+            up, or None to look it up in ``images``. Render and eval pass the photos at up to twice the frame's
+            size: a bilinear lookup at the frame's own size blurs each colour over two of the frame's pixels,
+            while the photo the render is scored against is an area average over one.
     """
 
     features: tuple[Tensor, ...]
@@ -57,6 +61,11 @@ class EncodedViews:
     height: int
     width: int
     reconstruction: Tensor | None = None  # [V, 3, H, W]
+    colours: Tensor | None = None  # [V, 3, Hc, Wc]
+
+    def __post_init__(self) -> None:
+        if self.colours is not None:
+            check_shape("colours", self.colours, (len(self.images), 3, None, None))
 
     def __len__(self) -> int:
         return self.images.shape[0]
@@ -75,16 +84,24 @@ class EncodedViews:
         rows = list(index)
         return EncodedViews(features=tuple(f[rows] for f in self.features), images=self.images[rows],
                             projection=self.projection[rows], centers=self.centers[rows], height=self.height,
-                            width=self.width)
+                            width=self.width, colours=None if self.colours is None else self.colours[rows])
+
+    def with_colours(self, colours: Tensor) -> "EncodedViews":
+        """These views with the reference colours looked up in ``colours`` [V, 3, Hc, Wc] (the same photos at a
+        finer size; see ``colours``)."""
+        return replace(self, colours=colours.to(self.images))
 
     @staticmethod
     def join(parts: Sequence["EncodedViews"]) -> "EncodedViews":
-        """The views of ``parts`` (same image size) in order, as one EncodedViews."""
+        """The views of ``parts`` (same image size, and colours of one size or none) in order, as one
+        EncodedViews."""
         first = parts[0]
+        colours = None if any(p.colours is None for p in parts) else torch.cat([p.colours for p in parts])
         return EncodedViews(features=tuple(torch.cat(scale) for scale in zip(*(p.features for p in parts))),
                             images=torch.cat([p.images for p in parts]),
                             projection=torch.cat([p.projection for p in parts]),
-                            centers=torch.cat([p.centers for p in parts]), height=first.height, width=first.width)
+                            centers=torch.cat([p.centers for p in parts]), height=first.height, width=first.width,
+                            colours=colours)
 
 
 @dataclass(frozen=True)
