@@ -75,7 +75,8 @@ def score(scene: Path, checkpoint: Path | None, args: argparse.Namespace) -> dic
 def fine_tune(scene: Path, args: argparse.Namespace, marks: list[float], path_for) -> dict:
     """One run of --minutes with snapshots at ``marks``; its record (steps at each mark, speed, load)."""
     config = FinetuneConfig(minutes=args.minutes, rays=args.rays, lr=args.lr, train_encoder=args.train_encoder,
-                            lr_encoder=args.lr, seed=args.seed, sfm_depth=args.sfm_depth)
+                            lr_encoder=args.lr, seed=args.seed, sfm_depth=args.sfm_depth,
+                            colour_scale=args.colour_scale)
     load_before = os.getloadavg()
     steps_at: dict[float, int] = {}
     hook = snapshot_hook(marks, path_for)
@@ -133,6 +134,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=FinetuneConfig.seed, help="seed of the draws and the jitter")
     parser.add_argument("--no-sfm-depth", dest="sfm_depth", action="store_false",
                         help="fine-tune with the fine samples placed by the coarse pass alone (before round 20)")
+    parser.add_argument("--colour-scale", type=float, default=FinetuneConfig.colour_scale,
+                        help="sources' colours from the photos at up to this many times the size (round 23)")
     parser.add_argument("--tag", default="", help="suffix of the checkpoint names")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)

@@ -18,7 +18,9 @@ from test_render_cli import make_checkpoint, make_scene, run
 
 from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune
 from insertnerf_cli.finetune import loop as finetune_loop
-from insertnerf_cli.finetune.data import draw, finetune_scene
+from insertnerf_cli.checkpoint import load_model
+from insertnerf_cli.finetune.data import FrozenFeatures, draw, finetune_scene
+from insertnerf_cli.training.data import ImageCache
 from insertnerf_cli.scenes import load_scene, normalize_scene
 from insertnerf_cli.views import held_out_views
 
@@ -67,6 +69,17 @@ def test_the_real_loop_draws_only_usable_views(tmp_path, base, monkeypatch):
     result = finetune(scene_dir, tmp_path / "ft.pt", config, torch.device("cpu"), base=base)
     assert result.steps == 5 and len(seen) == 5 and (result.usable_views, result.held_out_views) == (8, 2)
     assert not {i for draw_ids in seen for i in draw_ids} & {0, 8}
+
+
+def test_sources_colours_can_come_from_the_photos_at_twice_the_size(tmp_path, base):
+    scene = finetune_scene(make_scene(tmp_path / "scene", {"train": 10}), 16)  # photos larger than 16 px
+    model = load_model(base, torch.device("cpu"))[0]
+    h, w = scene.cameras.height, scene.cameras.width
+    frozen = FrozenFeatures(model, scene, ImageCache(1 << 20), colour_scale=2.0)
+    picked = frozen.select((5, 1))
+    torch.testing.assert_close(picked.colours, scene.scene.load_views([5, 1], 2 * h, 2 * w)[0].permute(0, 3, 1, 2))
+    assert (picked.height, picked.width) == (h, w)
+    assert FrozenFeatures(model, scene, ImageCache(1 << 20), colour_scale=1.0).select((5, 1)).colours is None
 
 
 def test_two_step_finetune_writes_weights_that_render_and_eval_load(tmp_path, base):

@@ -16,6 +16,7 @@ import torch
 from ..depth_prior import PRIOR_VIEWS, view_prior
 from ..errors import UserError
 from ..model import EncodedViews, InsertNeRF, SourceViews
+from ..view_renderer import colour_size
 from ..views import held_out_views, nearest_views
 from ..training.data import ImageCache, TrainScene, ViewDraw, draw_training_views, prepare_scene
 
@@ -48,28 +49,25 @@ class FrozenFeatures:
     same whichever other views it is encoded with.
     """
 
-    def __init__(self, model: InsertNeRF, scene: TrainScene, cache: ImageCache) -> None:
+    def __init__(self, model: InsertNeRF, scene: TrainScene, cache: ImageCache, colour_scale: float = 1.0) -> None:
         self.position = {index: p for p, index in enumerate(scene.train_ids)}
+        photo = (scene.scene.cameras.height, scene.scene.cameras.width)
+        finer = colour_size((scene.cameras.height, scene.cameras.width), photo, colour_scale)
         parts = []
         with torch.no_grad():
             for start in range(0, len(scene.train_ids), _ENCODE_BATCH):
                 ids = list(scene.train_ids[start:start + _ENCODE_BATCH])
                 images = torch.stack([cache.get(scene, i) for i in ids]).to(torch.float32) / 255.0  # [V, H, W, 3]
                 views = SourceViews(images, scene.cameras.subset(ids)).to(device=model.background.device)
-                parts.append(model.encode(views))
-        self.all = EncodedViews(features=tuple(torch.cat([p.features[s] for p in parts])
-                                               for s in range(len(parts[0].features))),
-                                images=torch.cat([p.images for p in parts]),
-                                projection=torch.cat([p.projection for p in parts]),
-                                centers=torch.cat([p.centers for p in parts]),
-                                height=parts[0].height, width=parts[0].width)
+                encoded = model.encode(views)
+                if finer is not None:  # the sources' colours as render looks them up (view_renderer.COLOUR_SCALE)
+                    encoded = encoded.with_colours(scene.scene.load_views(ids, *finer)[0].permute(0, 3, 1, 2))
+                parts.append(encoded)
+        self.all = EncodedViews.join(parts)
 
     def select(self, indices: tuple[int, ...]) -> EncodedViews:
         """The encoded views of scene view ``indices`` (in that order); no backbone reconstruction."""
-        rows = torch.tensor([self.position[i] for i in indices], device=self.all.images.device)
-        return EncodedViews(features=tuple(f[rows] for f in self.all.features), images=self.all.images[rows],
-                            projection=self.all.projection[rows], centers=self.all.centers[rows],
-                            height=self.all.height, width=self.all.width)
+        return self.all.select([self.position[i] for i in indices])
 
 
 class TargetPriors:

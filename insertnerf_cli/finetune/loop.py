@@ -47,6 +47,10 @@ class FinetuneConfig:
         seed: seeds the draws and the sample jitter.
         sfm_depth: place the fine samples as render does, by the scene's SfM points (triangulated at its poses
             from the usable views first when it has none); data.TargetPriors.
+        colour_scale: look the sources' colours up in the photos at up to this many times the fine-tuning size
+            (encoder frozen only). 1, at that size, as the generator was trained: render and eval of the result
+            still look up at view_renderer.COLOUR_SCALE, and 5 minutes with 2 here scored room 0.36 dB lower and
+            flower level (docs/model-card.md round 23).
     """
 
     minutes: float | None = 5.0
@@ -59,6 +63,7 @@ class FinetuneConfig:
     resolution: int | None = DEFAULT_RESOLUTION
     seed: int = 0
     sfm_depth: bool = True
+    colour_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.minutes is None and self.steps is None:
@@ -152,7 +157,7 @@ class _Run:
         self.cache = ImageCache(_CACHE_BYTES)
         self.objective = Objective(model)
         self.optimizer = torch.optim.Adam(_param_groups(model, config))
-        self.frozen = None if config.train_encoder else FrozenFeatures(model, scene, self.cache)
+        self.frozen = None if config.train_encoder else FrozenFeatures(model, scene, self.cache, config.colour_scale)
         self.device = model.background.device
         self.priors = TargetPriors(scene, self.device) if config.sfm_depth else None
         self.steps_done = 0
