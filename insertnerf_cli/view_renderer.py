@@ -20,7 +20,7 @@ DEFAULT_CHUNKS = {"cpu": 128, "cuda": 4096}
 ENCODED_VIEWS_KEPT = 2
 # Reference colours are looked up in the photos at up to this many times the frame's size (never above their own):
 # a bilinear lookup at the frame's size blurs each colour over two frame pixels. Issue 27, round 23: room +0.35 to
-# +0.41 dB and flower +0.45 at 10 views with 1.5 or 2; beer and mold_gold_cape within 0.02 dB (docs/model-card.md).
+# +0.41 dB and flower +0.45 at 10 views with 1.5 or 2; beer and mold_gold_cape within 0.04 dB (docs/model-card.md).
 COLOUR_SCALE = 2.0
 
 

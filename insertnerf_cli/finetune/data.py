@@ -60,7 +60,7 @@ class FrozenFeatures:
                 images = torch.stack([cache.get(scene, i) for i in ids]).to(torch.float32) / 255.0  # [V, H, W, 3]
                 views = SourceViews(images, scene.cameras.subset(ids)).to(device=model.background.device)
                 encoded = model.encode(views)
-                if finer is not None:  # the sources' colours as render looks them up (view_renderer.COLOUR_SCALE)
+                if finer is not None:  # FinetuneConfig.colour_scale > 1: colours from the photos at a finer size
                     encoded = encoded.with_colours(scene.scene.load_views(ids, *finer)[0].permute(0, 3, 1, 2))
                 parts.append(encoded)
         self.all = EncodedViews.join(parts)
