@@ -69,7 +69,7 @@ def test_projection_returns_the_colour_at_the_pixel_and_masks_unseen_points():
     assert seen.ray_diff.shape == (3, 4, 4) and torch.all(seen.cos.abs() <= 1 + 1e-5)
 
 
-def test_projection_reads_colours_from_the_finer_photos_where_given():
+def test_projection_blends_colours_from_the_finer_photos_where_given():
     torch.manual_seed(0)
     model = InsertNeRF(TINY).eval()
     cams = orbit_cameras(3, 20)
@@ -81,13 +81,16 @@ def test_projection_reads_colours_from_the_finer_photos_where_given():
     points = cams.subset([0]).unproject(uv, torch.full((1, 3), 2.5))[0][:, None]  # [R=3, S=1, 3]
     plain = project_samples(encoded, points, torch.randn(3, 3))
     seen = project_samples(encoded.with_colours(finer), points, torch.randn(3, 3))
-    torch.testing.assert_close(seen.colours[0], finer[0, :, rows, cols], atol=1e-5, rtol=1e-5)
-    assert not torch.allclose(plain.colours[0], seen.colours[0], atol=1e-2)
-    torch.testing.assert_close(seen.mask, plain.mask)  # which views see a sample does not change
+    torch.testing.assert_close(seen.blend_colours[0], finer[0, :, rows, cols], atol=1e-5, rtol=1e-5)
+    assert plain.finer is None and not torch.allclose(plain.blend_colours[0], seen.blend_colours[0], atol=1e-2)
+    # What the network reads is what it was trained on: colours, features and masks at the encoded size.
+    torch.testing.assert_close(seen.colours, plain.colours)
+    torch.testing.assert_close(seen.mask, plain.mask)
     for a, b in zip(seen.features, plain.features):
         torch.testing.assert_close(a, b)
-    outside = (seen.mask == 0).expand_as(seen.colours)
-    assert torch.all(seen.colours[outside] == 0)
+    outside = (seen.mask == 0).expand_as(seen.finer)
+    assert torch.all(seen.finer[outside] == 0)
+    assert project_samples(encoded.with_colours(finer), points, torch.randn(3, 3), finer=False).finer is None
     kept = encoded.with_colours(finer).select([2, 0])
     torch.testing.assert_close(kept.colours, finer[[2, 0]])
     assert EncodedViews.join([kept, encoded.with_colours(finer).select([1])]).colours.shape == (3, 3, 40, 40)

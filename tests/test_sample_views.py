@@ -25,7 +25,7 @@ def projected_at(angles: list[float], mask: list[float]) -> Projected:
     ray_diff = torch.cat([refs - query, (refs @ query)[:, None]], dim=1)[:, :, None]  # [V, 4, 1]
     tag = torch.arange(len(angles), dtype=torch.float32)[:, None, None]  # [V, 1, 1]: view n holds n
     return Projected((tag.expand(-1, 2, 1), tag.expand(-1, 5, 1)), tag.expand(-1, 3, 1),
-                     torch.tensor(mask)[:, None, None], ray_diff)
+                     torch.tensor(mask)[:, None, None], ray_diff, tag.expand(-1, 3, 1))
 
 
 def test_ray_angle_is_the_angle_between_the_rays():
@@ -39,7 +39,7 @@ def test_the_k_nearest_valid_views_in_angle_are_kept_with_everything_they_see():
     near = seen.nearest_in_angle(3)
     kept = sorted(int(v) for v in near.colours[:, 0, 0])
     assert kept == [1, 2, 3]  # 0.1, 0.2, 0.3: the hidden view 4 is nearer but cannot count
-    for tensor in (*near.features, near.colours):
+    for tensor in (*near.features, near.colours, near.finer):
         assert tensor.shape[0] == 3 and torch.equal(tensor[:, 0, 0], near.colours[:, 0, 0])
     assert torch.all(near.mask == 1.0)
     assert torch.allclose(ray_angle(near.ray_diff)[:, 0, 0].sort().values, torch.tensor([0.1, 0.2, 0.3]), atol=1e-5)

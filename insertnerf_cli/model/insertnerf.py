@@ -152,7 +152,7 @@ class InsertNeRF(nn.Module):
         """
         points = samples.points(rays)  # [R, S, 3]
         rays_n, samples_n = points.shape[:2]
-        seen = project_samples(encoded, points, rays.directions)
+        seen = project_samples(encoded, points, rays.directions, finer=colour)
         if self.config.sample_views:
             seen = seen.nearest_in_angle(self.config.sample_views)
         prior_views = self.config.colour_prior_views if colour else 0
@@ -168,7 +168,7 @@ class InsertNeRF(nn.Module):
         if prior_views:
             dynamic = reweigh(dynamic, angular_prior(seen.ray_diff, seen.mask, prior_views, angle))
         return SampleFeatures(points=points, conds=tuple(d.reshape(rays_n, samples_n, -1) for d in descriptors),
-                              dynamic=dynamic, colours=seen.colours, colour_variance=cost)
+                              dynamic=dynamic, colours=seen.blend_colours, colour_variance=cost)
 
     def shade(self, head: NeRFHead, seen: SampleFeatures, rays: Rays, samples: RaySamples,
               reference: Tensor, backdrop: Tensor, temperature: float = 0.0) -> Composite:

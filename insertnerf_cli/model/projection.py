@@ -25,16 +25,25 @@ class Projected:
 
     Attributes:
         features: per scale (coarse to fine) [V, C_l, P] bilinear U-Net features, zero where invalid.
-        colours: [V, 3, P] bilinear reference colours, zero where invalid.
+        colours: [V, 3, P] bilinear reference colours, zero where invalid: what the network reads (its inputs
+            and the photo-consistency cue), at the size the references were encoded at, as in training.
         mask: [V, 1, P] 1 where the sample is in front of the view and inside its image, else 0.
         ray_diff: [V, 4, P] (unit ref direction - unit query direction, their cosine): how differently the
             view looks at the sample.
+        finer: [V, 3, P] the same colours looked up in EncodedViews.colours (the photos at a finer size), or None
+            where there are none; the output colour blends these (blend_colours).
     """
 
     features: tuple[Tensor, ...]
     colours: Tensor  # [V, 3, P]
     mask: Tensor  # [V, 1, P]
     ray_diff: Tensor  # [V, 4, P]
+    finer: Tensor | None = None  # [V, 3, P]
+
+    @property
+    def blend_colours(self) -> Tensor:
+        """[V, 3, P] the reference colours the output colour blends: the finer lookup where there is one."""
+        return self.colours if self.finer is None else self.finer
 
     @property
     def cos(self) -> Tensor:
@@ -55,7 +64,7 @@ class Projected:
             return torch.gather(x, 0, index.expand(views, x.shape[1], x.shape[2]))
 
         return Projected(tuple(pick(f) for f in self.features), pick(self.colours), pick(self.mask),
-                         pick(self.ray_diff))
+                         pick(self.ray_diff), None if self.finer is None else pick(self.finer))
 
 
 def ray_angle(ray_diff: Tensor) -> Tensor:
@@ -71,13 +80,15 @@ def projection_matrices(cameras: Cameras) -> Tensor:
     return cameras.K @ cameras.w2c[:, :3, :]
 
 
-def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor) -> Projected:
+def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor, finer: bool = True) -> Projected:
     """Sample every reference view at every point.
 
     Args:
         encoded: the encoded reference views (V).
         points: [R, S, 3] world positions of the samples.
         directions: [R, 3] query ray directions (any length).
+        finer: also look the colours up in ``encoded.colours`` where it holds them (Projected.finer); False
+            where no colour is blended (render's coarse pass).
     """
     rays, samples = points.shape[:2]
     flat = points.reshape(rays * samples, 3).T  # [3, P]
@@ -91,16 +102,14 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor) -
     grid = grid.transpose(1, 2)[:, None]  # [V, 1, P, 2]
     features = tuple(_sample(f, grid) for f in encoded.features)
     centers = encoded.centers.to(points)
-    return Projected(features, _colours(encoded, uv, valid, grid), valid.to(points.dtype),
-                     _ray_diff(centers, flat, directions, samples))
+    fine = _finer_colours(encoded, uv, valid) if finer and encoded.colours is not None else None
+    return Projected(features, _sample(encoded.images, grid), valid.to(points.dtype),
+                     _ray_diff(centers, flat, directions, samples), fine)
 
 
-def _colours(encoded: EncodedViews, uv: Tensor, valid: Tensor, grid: Tensor) -> Tensor:
-    """[V, 3, P] reference colours at pixel positions uv [V, 2, P] (valid [V, 1, P]): from ``encoded.colours``
-    where it holds the photos at a finer size (normalised to the real image, which it spans exactly), else from the
-    padded images at ``grid``."""
-    if encoded.colours is None:
-        return _sample(encoded.images, grid)
+def _finer_colours(encoded: EncodedViews, uv: Tensor, valid: Tensor) -> Tensor:
+    """[V, 3, P] reference colours at pixel positions uv [V, 2, P] (valid [V, 1, P]) in ``encoded.colours``, the
+    photos at a finer size (normalised to the real image, which they span exactly; zero where invalid)."""
     scale = torch.tensor([2.0 / encoded.width, 2.0 / encoded.height], dtype=uv.dtype, device=uv.device)[:, None]
     fine = torch.where(valid, uv * scale - 1.0, torch.full_like(uv, _OUTSIDE)).transpose(1, 2)[:, None]
     return _sample(encoded.colours, fine)

@@ -48,10 +48,11 @@ class EncodedViews:
         centers: [V, 3] camera centres.
         height, width: the real image size H, W (pixels beyond it are padding and count as outside).
         reconstruction: [V, 3, H, W] the backbone decoder's rebuild of the images (training only, else None).
-        colours: [V, 3, Hc, Wc] the same photos at a finer size (unpadded) where a reference's colour is looked
-            up, or None to look it up in ``images``. Render and eval pass the photos at up to twice the frame's
-            size: a bilinear lookup at the frame's own size blurs each colour over two of the frame's pixels,
-            while the photo the render is scored against is an area average over one.
+        colours: [V, 3, Hc, Wc] the same photos at a finer size (unpadded) where the reference colours that the
+            output colour blends are looked up, or None to look them up in ``images``. Render and eval pass the
+            photos at up to twice the frame's size: a bilinear lookup at the frame's own size blurs each colour
+            over two of the frame's pixels, while the photo the render is scored against is an area average over
+            one. The network's inputs still read ``images``, as in training (Projected.finer).
     """
 
     features: tuple[Tensor, ...]
@@ -113,7 +114,8 @@ class SampleFeatures:
         conds: per scale, coarse to fine, [R, S, D_l] aggregated descriptors (the HyperNet conditions).
         dynamic: [V, 1, R * S] view weights of the reference colour: the dynamic weights averaged over the scales
             (times the angular prior with ``colour_prior_views``), summing to 1 where a view sees the sample.
-        colours: [V, 3, R * S] reference colours at the samples' projections (zero where a view cannot see).
+        colours: [V, 3, R * S] reference colours at the samples' projections that the output colour blends
+            (Projected.blend_colours; zero where a view cannot see).
         colour_variance: [R, S] how much the nearest views disagree on each sample's colour
             (consistency.colour_variance), or None where the config uses no photo-consistency.
     """
