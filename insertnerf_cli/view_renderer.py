@@ -18,9 +18,10 @@ DEFAULT_CHUNKS = {"cpu": 128, "cuda": 4096}
 # Consecutive frames of a path mostly share their reference views: encodings are kept per view, for this many
 # times --views views, so a frame encodes only the views its predecessors did not use.
 ENCODED_VIEWS_KEPT = 2
-# Reference colours are looked up in the photos at up to this many times the frame's size (never above their own):
-# a bilinear lookup at the frame's size blurs each colour over two frame pixels. Issue 27, round 23: room +0.35 to
-# +0.41 dB and flower +0.45 at 10 views with 1.5 or 2; beer and mold_gold_cape within 0.04 dB (docs/model-card.md).
+# The reference colours a frame's colour blends are looked up in the photos at up to this many times the frame's
+# size (never above their own): a bilinear lookup at the frame's size blurs each colour over two frame pixels.
+# Issue 27, round 23: room +0.40 dB and flower +0.48 at 10 views; beer and mold_gold_cape within 0.04 dB
+# (docs/model-card.md).
 COLOUR_SCALE = 2.0
 
 
@@ -55,8 +56,8 @@ class ViewRenderer:
         device, chunk, exact: as in RenderConfig (chunk None = DEFAULT_CHUNKS of the device).
         sfm_depth: guide the fine samples by the scene's SfM points where it has them (depth_prior.view_prior:
             the points that two views outside a frame's ``exclude`` and one of its nearest references observe).
-        colour_scale: look the reference colours up in the photos at up to this many times ``size`` (1: at
-            ``size``, in the images the U-Net encodes).
+        colour_scale: look the reference colours that the frame's colour blends up in the photos at up to this
+            many times ``size`` (1: at ``size``, in the images the U-Net encodes).
     """
 
     def __init__(self, model: torch.nn.Module, scene, size: tuple[int, int], views: int, device: str = "cpu",
