@@ -96,10 +96,7 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor, f
     valid = ((depth > 1e-6) & (uv[:, :1] >= 0) & (uv[:, :1] <= encoded.width)
              & (uv[:, 1:] >= 0) & (uv[:, 1:] <= encoded.height))  # [V, 1, P]
     pad_h, pad_w = encoded.padded_size
-    # align_corners=False: -1 and +1 are the outer edges of the padded image, matching pixel (0, 0) = [0, 1]^2.
-    scale = torch.tensor([2.0 / pad_w, 2.0 / pad_h], dtype=uv.dtype, device=uv.device)[:, None]
-    grid = torch.where(valid, uv * scale - 1.0, torch.full_like(uv, _OUTSIDE))  # [V, 2, P]
-    grid = grid.transpose(1, 2)[:, None]  # [V, 1, P, 2]
+    grid = _grid(uv, valid, pad_w, pad_h)  # [V, 1, P, 2]
     features = tuple(_sample(f, grid) for f in encoded.features)
     centers = encoded.centers.to(points)
     fine = _finer_colours(encoded, uv, valid) if finer and encoded.colours is not None else None
@@ -109,10 +106,16 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor, f
 
 def _finer_colours(encoded: EncodedViews, uv: Tensor, valid: Tensor) -> Tensor:
     """[V, 3, P] reference colours at pixel positions uv [V, 2, P] (valid [V, 1, P]) in ``encoded.colours``, the
-    photos at a finer size (normalised to the real image, which they span exactly; zero where invalid)."""
-    scale = torch.tensor([2.0 / encoded.width, 2.0 / encoded.height], dtype=uv.dtype, device=uv.device)[:, None]
-    fine = torch.where(valid, uv * scale - 1.0, torch.full_like(uv, _OUTSIDE)).transpose(1, 2)[:, None]
-    return _sample(encoded.colours, fine)
+    photos at a finer size (which span the real image exactly, so the grid is relative to it; zero where invalid)."""
+    return _sample(encoded.colours, _grid(uv, valid, encoded.width, encoded.height))
+
+
+def _grid(uv: Tensor, valid: Tensor, width: float, height: float) -> Tensor:
+    """[V, 1, P, 2] grid_sample coordinates of pixel positions uv [V, 2, P] in an image that ``width`` x
+    ``height`` pixels span; _OUTSIDE where not ``valid`` [V, 1, P]."""
+    # align_corners=False: -1 and +1 are the image's outer edges, matching pixel (0, 0) = [0, 1]^2.
+    scale = torch.tensor([2.0 / width, 2.0 / height], dtype=uv.dtype, device=uv.device)[:, None]
+    return torch.where(valid, uv * scale - 1.0, torch.full_like(uv, _OUTSIDE)).transpose(1, 2)[:, None]
 
 
 def pixel_coordinates(projection: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
