@@ -90,14 +90,15 @@ class ViewRenderer:
         key = sorted(refs)
         missing = [i for i in key if i not in self.cache]
         if missing:
-            images, cams = self.scene.load_views(missing, *self.size)
+            finer = [] if self.colour_size is None else [self.colour_size]
+            images, *photos = self.scene.load_sizes(missing, [self.size, *finer])  # [V, H, W, 3], [V, Hc, Wc, 3]
             param = next(self.model.parameters())
+            cams = self.scene.cameras.subset(missing).rescale(*self.size)
             views = SourceViews(images, cams).to(device=param.device, dtype=param.dtype)
             with torch.inference_mode():
                 encoded = self.model.encode(views)
-            if self.colour_size is not None:
-                photos, _ = self.scene.load_views(missing, *self.colour_size)  # [V, Hc, Wc, 3]
-                encoded = encoded.with_colours(photos.permute(0, 3, 1, 2))
+            if photos:
+                encoded = encoded.with_colours(photos[0].permute(0, 3, 1, 2))
             for row, index in enumerate(missing):
                 self.cache[index] = encoded.select([row])
         for index in key:

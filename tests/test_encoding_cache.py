@@ -66,3 +66,16 @@ def test_colours_come_from_the_photos_at_up_to_twice_the_frame_size(tmp_path):
     torch.testing.assert_close(encoded.colours, photos.permute(0, 3, 1, 2))
     assert (encoded.height, encoded.width) == (h, w)
     assert ViewRenderer(model, scene, (h, w), views=2, colour_scale=1.0)._encoded([3, 1]).colours is None
+
+
+def test_both_sizes_come_from_one_decode_of_each_photo(tmp_path, monkeypatch):
+    import insertnerf_cli.scenes.base as base
+
+    scene = load_scene(write_blender(tmp_path / "scene", known_scene(n=3)))
+    decoded: list = []
+    read = base.read_rgb
+    monkeypatch.setattr(base, "read_rgb", lambda *a, **k: decoded.append(a[0]) or read(*a, **k))
+    small, large = scene.load_sizes([2, 0], [(12, 16), (24, 32)])
+    assert len(decoded) == 2  # one read per photo, whatever the number of sizes
+    torch.testing.assert_close(small, scene.load_views([2, 0], 12, 16)[0])
+    torch.testing.assert_close(large, scene.load_views([2, 0], 24, 32)[0])

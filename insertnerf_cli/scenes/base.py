@@ -86,25 +86,32 @@ class Scene:
 
     def load_image(self, index: int, height: int | None = None, width: int | None = None) -> np.ndarray:
         """Image ``index`` as float32 RGB [H, W, 3] in [0, 1], resized to height x width if given."""
+        img = self._decoded(index)
+        if height is not None and width is not None:
+            img = resize(img, height, width)
+        return img
+
+    def _decoded(self, index: int) -> np.ndarray:
+        """Image ``index`` as float32 RGB [H, W, 3] at the cameras' size, undistorted where the scene says so."""
         img = read_rgb(self.image_paths[index], self.background)
         if self.distortion is not None and self.distortion[index] is not None:
             # Undistort at the file's own resolution, where K (the undistorted camera) is scaled to the file.
             K = self.cameras.rescale(img.shape[0], img.shape[1]).K[index].cpu().numpy()
             img = undistort(img, K, self.distortion[index])
-        if img.shape[:2] != (self.cameras.height, self.cameras.width):
-            # Mixed sizes of one aspect ratio: the cameras were scaled to the common size.
-            img = resize(img, self.cameras.height, self.cameras.width)
-        if height is not None and width is not None and (height, width) != img.shape[:2]:
-            img = resize(img, height, width)
-        return img
+        # Mixed sizes of one aspect ratio: the cameras were scaled to the common size.
+        return resize(img, self.cameras.height, self.cameras.width)
 
     def load_views(self, indices: Sequence[int], height: int | None = None,
                    width: int | None = None) -> tuple[Tensor, Cameras]:
         """Images [V, H, W, 3] (float32) and their cameras, rescaled to height x width if given."""
         h = height or self.cameras.height
         w = width or self.cameras.width
-        images = torch.from_numpy(np.stack([self.load_image(i, h, w) for i in indices]))
-        return images, self.cameras.subset(list(indices)).rescale(h, w)
+        return self.load_sizes(indices, [(h, w)])[0], self.cameras.subset(list(indices)).rescale(h, w)
+
+    def load_sizes(self, indices: Sequence[int], sizes: Sequence[tuple[int, int]]) -> list[Tensor]:
+        """Images [V, H, W, 3] (float32) at each (H, W) of ``sizes``, each file read and decoded once."""
+        per_view = [[resize(img, h, w) for h, w in sizes] for img in map(self._decoded, indices)]
+        return [torch.from_numpy(np.stack([view[k] for view in per_view])) for k in range(len(sizes))]
 
     def subset(self, indices: Sequence[int]) -> "Scene":
         """The views at ``indices`` (in that order); splits are re-indexed and keep only the chosen views."""
