@@ -22,7 +22,7 @@ from .lock import lock_output, releases_output_locks
 from .metrics import SSIM_WINDOW, psnr, ssim
 from .outputs import write_png
 from .view_renderer import ViewRenderer, checkpoint_path, load_model
-from .views import held_out_views
+from .views import evenly_spread, held_out_views
 
 
 @dataclass(frozen=True)
@@ -33,7 +33,8 @@ class EvalConfig:
         views: reference views per held-out view, or a tuple of counts to score each of (same held-out views).
         out_dir: folder for side-by-side images (render | truth | error) and report.html, or None for none.
         json_path: file for the report (keys psnr, ssim, views; for several counts: by_count), or None.
-        max_views: evaluate at most this many held-out views, evenly spread (None = all).
+        max_views: score at most this many held-out views, evenly spread (None = all); the others stay out of the
+            references, so each score is the one the full run gives that view.
         overwrite: replace an existing JSON report and side-by-side images.
     """
 
@@ -136,7 +137,10 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     if (warning := walk_warning(scene)) is not None:
         print(warning, file=sys.stderr, flush=True)
     scene, _ = normalize_scene(scene)
-    held = held_out_views(scene, config.max_views)
+    # --max-views scores fewer views of the same protocol: the unscored held-out views stay out of the references
+    # and the triangulation, so each score equals that view's score in the full run.
+    held = held_out_views(scene)
+    scored = evenly_spread(held, config.max_views)
     size = scene.size_for(config.resolution)
     if min(size) < SSIM_WINDOW:
         raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
@@ -148,9 +152,9 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
         scene = with_points(scene, [i for i in range(len(scene)) if i not in held])
     renderer = ViewRenderer(model, scene, size, max(counts), config.device, config.chunk, config.exact,
                             config.sfm_depth)
-    prepare_side_by_sides(out_dir, held, counts)
+    prepare_side_by_sides(out_dir, scored, counts)
     scores: dict[int, list[ViewScore]] = {n: [] for n in counts}
-    for index in tqdm(held, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):
+    for index in tqdm(scored, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):
         camera = scene.cameras.subset([index]).rescale(*size)
         truth = scene.load_image(index, *size).astype(np.float64)
         # Most references first: the smaller counts' nearest views are among them, already encoded.

@@ -128,15 +128,21 @@ def sample_training_views(rng: np.random.Generator, target_index: int, c2w: Tens
     return views
 
 
-def held_out_views(scene: Scene, max_views: int | None = None) -> list[int]:
-    """The views `eval` scores and `finetune` never uses: the test split when the scene has one, else every 8th
-    view; at most ``max_views``, evenly spread."""
+def held_out_views(scene: Scene) -> list[int]:
+    """The views `eval` scores and that neither eval's references nor `finetune` ever use: the test split when the
+    scene has one, else every 8th view."""
     test = scene.split("test")
     if not test or len(test) == len(scene):
         raise UserError(f"{scene.root}: {len(scene)} views leave no held-out/reference split to evaluate")
-    if max_views is not None and max_views < len(test):
-        test = [test[round(i * (len(test) - 1) / max(max_views - 1, 1))] for i in range(max_views)]
     return sorted(set(test))
+
+
+def evenly_spread(views: Sequence[int], count: int | None) -> list[int]:
+    """At most ``count`` of ``views`` (sorted), evenly spread over them; all of them for None."""
+    views = sorted(views)
+    if count is None or count >= len(views):
+        return views
+    return sorted({views[round(i * (len(views) - 1) / max(count - 1, 1))] for i in range(count)})
 
 
 def _unit(v: Tensor) -> Tensor:

@@ -10,7 +10,7 @@ import pytest
 from test_render_cli import make_checkpoint, make_scene, ring_cameras, run
 
 from insertnerf_cli.scenes import load_scene
-from insertnerf_cli.views import held_out_views, nearest_views
+from insertnerf_cli.views import evenly_spread, held_out_views, nearest_views
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -82,9 +82,25 @@ def test_eval_needs_images_as_large_as_the_ssim_window(checkpoint, tmp_path):
 def test_held_out_views_rules(tmp_path):
     split = load_scene(make_scene(tmp_path / "split", {"train": 6, "test": 4}))
     assert held_out_views(split) == [6, 7, 8, 9]
-    assert held_out_views(split, max_views=2) == [6, 9]  # evenly spread
+    assert evenly_spread(held_out_views(split), 2) == [6, 9]
+    assert evenly_spread([6, 7, 8, 9], None) == evenly_spread([9, 8, 7, 6], 5) == [6, 7, 8, 9]
     plain = load_scene(make_scene(tmp_path / "plain", {"train": 17}))
     assert held_out_views(plain) == [0, 8, 16]
+
+
+def test_max_views_scores_a_subset_of_the_full_protocol(checkpoint, tmp_path):
+    # The unscored held-out views must not become references: each score equals the full run's for that view.
+    scene = make_scene(tmp_path / "scene", {"train": 8, "test": 3})
+    assert _eval(scene, checkpoint, "--json", tmp_path / "all.json", "--no-sfm-depth").exit_code == 0
+    result = _eval(scene, checkpoint, "--json", tmp_path / "two.json", "--max-views", 2, "--no-sfm-depth")
+    assert result.exit_code == 0, result.output
+    full = {v["index"]: v for v in json.loads((tmp_path / "all.json").read_text())["views"]}
+    part = json.loads((tmp_path / "two.json").read_text())["views"]
+    assert [v["index"] for v in part] == [8, 10]
+    for view in part:
+        assert not set(view["references"]) & {8, 9, 10}
+        assert view["references"] == full[view["index"]]["references"]
+        assert view["psnr"] == pytest.approx(full[view["index"]]["psnr"], abs=1e-9)
 
 
 def test_a_list_of_view_counts_scores_each_on_the_same_held_out_views(checkpoint, tmp_path, monkeypatch):
