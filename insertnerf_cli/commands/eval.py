@@ -56,8 +56,9 @@ def _table(run: EvalRun) -> list[str]:
                    "reference_views and by_count, one report per count).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Write side-by-side images (render | truth | error) and report.html to this folder.")
-@click.option("--max-views", type=click.IntRange(min=1), help="Score at most this many held-out views, evenly spread (a quicker preview: the others stay "
-              "out of the references, so each score is the one the full run gives).")
+@click.option("--max-views", type=click.IntRange(min=1),
+              help="Score at most this many held-out views, evenly spread (a quicker preview: the others stay out "
+                   "of the references, so each score is the one the full run gives).")
 @model_options(views_option=_views_option)
 @device_option
 @overwrite_option
