@@ -138,7 +138,9 @@ def held_out_views(scene: Scene) -> list[int]:
 
 
 def evenly_spread(views: Sequence[int], count: int | None) -> list[int]:
-    """At most ``count`` of ``views`` (sorted), evenly spread over them; all of them for None."""
+    """At most ``count`` (>= 1) of ``views`` (sorted), evenly spread over them; all of them for None."""
+    if count is not None and count < 1:
+        raise ValueError(f"count must be at least 1, got {count}")
     views = sorted(views)
     if count is None or count >= len(views):
         return views

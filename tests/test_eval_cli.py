@@ -84,6 +84,9 @@ def test_held_out_views_rules(tmp_path):
     assert held_out_views(split) == [6, 7, 8, 9]
     assert evenly_spread(held_out_views(split), 2) == [6, 9]
     assert evenly_spread([6, 7, 8, 9], None) == evenly_spread([9, 8, 7, 6], 5) == [6, 7, 8, 9]
+    assert evenly_spread([6, 7, 8, 9], 1) == [6]
+    with pytest.raises(ValueError):
+        evenly_spread([6, 7], 0)  # scoring no view would report a mean over nothing
     plain = load_scene(make_scene(tmp_path / "plain", {"train": 17}))
     assert held_out_views(plain) == [0, 8, 16]
 
