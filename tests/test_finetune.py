@@ -20,7 +20,7 @@ from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune
 from insertnerf_cli.finetune import loop as finetune_loop
 from insertnerf_cli.checkpoint import load_model
 from insertnerf_cli.finetune.data import FrozenFeatures, draw, finetune_scene
-from insertnerf_cli.training.data import ImageCache
+from insertnerf_cli.training.data import ImageCache, decode_uint8
 from insertnerf_cli.scenes import load_scene, normalize_scene
 from insertnerf_cli.views import held_out_views
 
@@ -80,6 +80,26 @@ def test_sources_colours_can_come_from_the_photos_at_twice_the_size(tmp_path, ba
     torch.testing.assert_close(picked.colours, scene.scene.load_views([5, 1], 2 * h, 2 * w)[0].permute(0, 3, 1, 2))
     assert (picked.height, picked.width) == (h, w)
     assert FrozenFeatures(model, scene, ImageCache(1 << 20), colour_scale=1.0).select((5, 1)).colours is None
+
+
+def test_finer_colours_decode_each_photo_once_and_fill_the_cache(tmp_path, base, monkeypatch):
+    scene = finetune_scene(make_scene(tmp_path / "scene", {"train": 10}), 16)
+    model = load_model(base, torch.device("cpu"))[0]
+    decoded: list[int] = []
+    real = type(scene.scene)._decoded
+
+    def counting(self, index):
+        decoded.append(index)
+        return real(self, index)
+
+    monkeypatch.setattr(type(scene.scene), "_decoded", counting)
+    cache = ImageCache(1 << 20)
+    FrozenFeatures(model, scene, cache, colour_scale=2.0)
+    assert sorted(decoded) == sorted(scene.train_ids)  # the training size and the finer one from one decode
+    cached = [cache.get(scene, i) for i in scene.train_ids]
+    assert len(decoded) == len(scene.train_ids)  # later steps find every source in the cache
+    for i, image in zip(scene.train_ids, cached):  # and it holds what the cache would have decoded itself
+        torch.testing.assert_close(image, decode_uint8(scene, i), rtol=0, atol=0)
 
 
 def test_two_step_finetune_writes_weights_that_render_and_eval_load(tmp_path, base):

@@ -18,7 +18,7 @@ from ..errors import UserError
 from ..model import EncodedViews, InsertNeRF, SourceViews
 from ..view_renderer import colour_size
 from ..views import held_out_views, nearest_views
-from ..training.data import ImageCache, TrainScene, ViewDraw, draw_training_views, prepare_scene
+from ..training.data import ImageCache, TrainScene, ViewDraw, draw_training_views, prepare_scene, to_uint8
 
 # Views encoded at once when the frozen encoder's features are precomputed (bounds peak memory).
 _ENCODE_BATCH = 8
@@ -57,11 +57,17 @@ class FrozenFeatures:
         with torch.no_grad():
             for start in range(0, len(scene.train_ids), _ENCODE_BATCH):
                 ids = list(scene.train_ids[start:start + _ENCODE_BATCH])
-                images = torch.stack([cache.get(scene, i) for i in ids]).to(torch.float32) / 255.0  # [V, H, W, 3]
+                colours = None
+                if finer is None:
+                    stored = [cache.get(scene, i) for i in ids]
+                else:  # FinetuneConfig.colour_scale > 1: colours from the photos at a finer size, one decode each
+                    small, colours = scene.scene.load_sizes(ids, [(scene.cameras.height, scene.cameras.width), finer])
+                    stored = [cache.put(scene, i, to_uint8(image)) for i, image in zip(ids, small)]
+                images = torch.stack(stored).to(torch.float32) / 255.0  # [V, H, W, 3]
                 views = SourceViews(images, scene.cameras.subset(ids)).to(device=model.background.device)
                 encoded = model.encode(views)
-                if finer is not None:  # FinetuneConfig.colour_scale > 1: colours from the photos at a finer size
-                    encoded = encoded.with_colours(scene.scene.load_views(ids, *finer)[0].permute(0, 3, 1, 2))
+                if colours is not None:
+                    encoded = encoded.with_colours(colours.permute(0, 3, 1, 2))
                 parts.append(encoded)
         self.all = EncodedViews.join(parts)
 

@@ -149,7 +149,13 @@ class ImageCache:
         if key in self._images:
             self._images.move_to_end(key)
             return self._images[key]
-        stored = decode_uint8(scene, index)
+        return self.put(scene, index, decode_uint8(scene, index))
+
+    def put(self, scene: TrainScene, index: int, stored: Tensor) -> Tensor:
+        """Keep ``stored`` (uint8 [H, W, 3], as decode_uint8 gives it) as image ``index`` of the scene; returns it."""
+        key = (scene.name, index)
+        if key in self._images:
+            self.used -= self._images.pop(key).numel()
         self._images[key] = stored
         self.used += stored.numel()
         while self.used > self.budget and len(self._images) > 1:
@@ -161,6 +167,12 @@ class ImageCache:
 def decode_uint8(scene: TrainScene, index: int) -> Tensor:
     """Image ``index`` of the scene at the training size as uint8 [H, W, 3]."""
     image = scene.scene.load_image(index, scene.cameras.height, scene.cameras.width)  # float32 [H, W, 3]
+    return to_uint8(image)
+
+
+def to_uint8(image: np.ndarray | Tensor) -> Tensor:
+    """float RGB in [0, 1] [..., 3] -> the uint8 levels the cache stores."""
+    image = np.asarray(image)
     return torch.from_numpy(np.rint(np.clip(image, 0.0, 1.0) * _LEVELS).astype(np.uint8))
 
 
