@@ -13,6 +13,11 @@ line per capture.
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --weight-power 2 --max-views 3
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --depth-bounds --root scratch/syn_obj --captures scene_00000
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --sample-views 12 --max-views 3 --views 10,16
+    OMP_NUM_THREADS=1 python3 bench/eval_probe.py --prior-rule round19 --views 3,10
+
+--prior-rule round19 makes each frame's SfM depth prior as rounds 19-24 did: from the points that two of every
+reference photo (any view eval does not hold out) observe and one of the frame's 10 nearest references does.
+Since round 25 the rule is two of the frame's 10 nearest references (depth_prior.view_prior).
 """
 from __future__ import annotations
 
@@ -62,8 +67,13 @@ def main() -> None:
                         help="place the coarse samples uniformly in 1/t instead of t (the model trained with t)")
     parser.add_argument("--sample-views", type=int, default=None,
                         help="per sample, aggregate only the K views nearest in angle to the query ray")
+    parser.add_argument("--prior-rule", choices=("references", "round19"), default="references",
+                        help="which points make a frame's SfM prior: two of its references observe them (shipped), "
+                             "or two of any non-held-out photo and one of its references (rounds 19-24)")
     args = parser.parse_args()
     checkpoint = args.checkpoint
+    if args.prior_rule == "round19":
+        patch_round19_prior()
     if args.sample_views is not None:  # the config's own setting, in a copy: whatever the checkpoint carries
         scratch = tempfile.TemporaryDirectory(prefix="eval_probe_")
         checkpoint = export_weights(checkpoint or bundled_checkpoint(), Path(scratch.name) / "probe.pt",
@@ -87,7 +97,8 @@ def main() -> None:
         print(f"near x{args.near_scale} far x{args.far_scale} global {args.global_bounds} depth {args.depth_bounds} "
               f"rule {args.method} "
               f"from references {args.reference_bounds} weight power {args.weight_power} "
-              f"in disparity {args.in_disparity} sample views {args.sample_views} overlap {args.overlap_weight} | "
+              f"in disparity {args.in_disparity} sample views {args.sample_views} overlap {args.overlap_weight} "
+              f"prior rule {args.prior_rule} | "
               f"{capture} | {cells}", flush=True)
 
 
@@ -115,6 +126,25 @@ def with_depth_bounds(scene):
     near, far = bounds_from_depths([torch.empty(0) if d is None else torch.from_numpy(d) for d in depths],
                                    (scene.near, scene.far))
     return dataclasses.replace(scene, near=near, far=far)
+
+
+def patch_round19_prior() -> None:
+    """Make ViewRenderer.render's SfM prior round 19's: the points two of the non-held-out photos observe and one of
+    the frame's PRIOR_VIEWS nearest references does."""
+    from insertnerf_cli.depth_prior import PRIOR_VIEWS, prior_depth
+    from insertnerf_cli.render import render_image
+
+    def render(self, camera, near, far, exclude, views=None):
+        refs = self.references(camera.c2w[0], exclude, views)
+        prior = None
+        if self.sfm_depth and self.scene.points is not None:
+            allowed = [i for i in range(len(self.scene)) if i not in set(exclude)]
+            seen = self.scene.points.seen_from(allowed, near=refs[:PRIOR_VIEWS])
+            prior = prior_depth(seen, camera) if len(seen) else None
+        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts,
+                            prior), refs
+
+    view_renderer.ViewRenderer.render = render
 
 
 def patch_view_rule(method: str) -> None:

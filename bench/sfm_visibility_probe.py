@@ -45,7 +45,7 @@ def reference_points_depth(renderer: ViewRenderer, index: int, exclude: list[int
 def render(self: ViewRenderer, camera, near: float, far: float, exclude: list[int], views: int | None = None):
     """ViewRenderer.render with the references' point maps set for observe (in the encoding's sorted order)."""
     refs = self.references(camera.c2w[0], exclude, views)
-    prior = self._prior(camera, exclude, refs)
+    prior = self._prior(camera, refs)
     usable = vp.SETTINGS["mode"] != "off" and self.scene.points is not None
     vp.STATE["maps"] = torch.stack([reference_points_depth(self, r, exclude) for r in sorted(refs)]) if usable \
         else None

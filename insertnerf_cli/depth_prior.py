@@ -34,18 +34,20 @@ GUIDE_WIDTH = 0.05
 # frame's long side (2 and 12 px at eval's 256 px).
 SPLAT_FRACTION = 2 / 256
 REACH_FRACTION = 12 / 256
-# A view's prior uses the points that its nearest references (at most this many; render's default count) observe:
-# a point seen only from farther views is often hidden from it (round 19: at 16 views, capping at 10 scored room
-# 27.30 dB against 27.15 and mold_gold_cape 16.73 against 16.66; 6 scored within 0.07 dB of 10).
+# A view's prior uses the points that one of its nearest references (at most this many; render's default count)
+# observes: a point seen only from farther views is often hidden from it (round 19: at 16 views, capping at 10
+# scored room 27.30 dB against 27.15 and mold_gold_cape 16.73 against 16.66; 6 scored within 0.07 dB of 10).
 PRIOR_VIEWS = DEFAULT_VIEWS
 
 
-def view_prior(points: "ScenePoints", camera: Cameras, allowed: Sequence[int], refs: Sequence[int]) -> Tensor | None:
-    """[H, W] the prior of ``camera`` (1) from the points that two of the ``allowed`` views observe and one of its
-    PRIOR_VIEWS nearest references ``refs`` (nearest first) does, or None when no point is left. A view left out of
-    ``allowed`` (eval's held-out photo, fine-tuning's target) lends none of its own observations; a sparse cloud
-    would otherwise paint the far side of an object into the splats (round 19)."""
-    seen = points.seen_from(allowed, near=list(refs)[:PRIOR_VIEWS])
+def view_prior(points: "ScenePoints", camera: Cameras, refs: Sequence[int]) -> Tensor | None:
+    """[H, W] the prior of ``camera`` (1) from the points that two of its references ``refs`` (nearest first)
+    observe and one of the PRIOR_VIEWS nearest does, or None when no point is left: points the frame's references
+    would triangulate themselves, which they see, as the generator matching them does. Observations of any other
+    view (eval's held-out photo, fine-tuning's target, a far photo that sees round an occluder) lend nothing; a
+    sparse cloud would otherwise paint the far side of an object into the splats (rounds 19 and 25)."""
+    refs = list(refs)
+    seen = points.seen_from(refs, near=refs[:PRIOR_VIEWS])
     return prior_depth(seen, camera) if len(seen) else None
 
 

@@ -113,17 +113,15 @@ class ViewRenderer:
         from .render import render_image
 
         refs = self.references(camera.c2w[0], exclude, views)
-        prior = self._prior(camera, exclude, refs)
+        prior = self._prior(camera, refs)
         return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts,
                             prior), refs
 
-    def _prior(self, camera: Cameras, exclude: list[int], refs: list[int]) -> torch.Tensor | None:
-        """[H, W] the SfM depth prior of ``camera``, or None: depth_prior.view_prior of the views outside
-        ``exclude`` (eval's held-out photo must not lend its own observations) and the frame's references ``refs``
-        (nearest first)."""
+    def _prior(self, camera: Cameras, refs: list[int]) -> torch.Tensor | None:
+        """[H, W] the SfM depth prior of ``camera``, or None: depth_prior.view_prior of the frame's references
+        ``refs`` (nearest first; never an excluded view, so eval's held-out photo lends no observation)."""
         if not self.sfm_depth:
             return None
         from .depth_prior import view_prior
 
-        excluded = set(exclude)
-        return view_prior(self.scene.points, camera, [i for i in range(len(self.scene)) if i not in excluded], refs)
+        return view_prior(self.scene.points, camera, refs)

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from insertnerf_cli.cameras import Cameras, intrinsics
-from insertnerf_cli.depth_prior import guide_weights, prior_depth
+from insertnerf_cli.depth_prior import PRIOR_VIEWS, guide_weights, prior_depth, view_prior
 from insertnerf_cli.sampling import RaySamples, importance_samples
 from insertnerf_cli.scenes import load_scene, normalize_scene
 from insertnerf_cli.scenes.points import ScenePoints
@@ -77,6 +77,26 @@ def test_points_seen_from_counts_only_the_allowed_views() -> None:
     assert points.seen_from([0, 1, 2], near=[2]).tolist() == xyz[[0]].tolist()
     assert points.seen_from([0, 1, 2], near=[0]).tolist() == xyz[[0, 1]].tolist()
     assert len(points.seen_from([0, 1, 2], near=[])) == 0
+
+
+def test_a_frames_prior_uses_only_the_points_two_of_its_references_observe() -> None:
+    near, far = plane_points(2.0, 0.05), plane_points(4.0, 0.05)
+    n = len(near)
+    xyz = torch.cat([near, far])
+    # The near plane: seen by reference 0 and by view 5 (not a reference: a far photo, or eval's held-out one).
+    # The far plane: seen by references 1 and 2. A z-buffer over every point would paint the near plane.
+    observed = tuple(torch.arange(n) if v in (0, 5) else torch.arange(n, 2 * n) if v in (1, 2)
+                     else torch.zeros(0, dtype=torch.int64) for v in range(6))
+    points = ScenePoints(xyz, observed)
+    depth = view_prior(points, camera_at_origin(), [0, 1, 2])
+    torch.testing.assert_close(depth, torch.full((H, W), 4.0, dtype=depth.dtype))
+    assert view_prior(points, camera_at_origin(), [0, 3]) is None  # one observer among the references: no point
+    # With more references than PRIOR_VIEWS, one of the nearest PRIOR_VIEWS must observe the point too.
+    many = ScenePoints(xyz, observed + tuple(torch.zeros(0, dtype=torch.int64) for _ in range(PRIOR_VIEWS)))
+    others = list(range(6, 6 + PRIOR_VIEWS - 2))  # references that observe nothing
+    assert view_prior(many, camera_at_origin(), [3, 4, *others, 1, 2]) is None  # 1 and 2 both beyond the nearest
+    depth = view_prior(many, camera_at_origin(), [3, 1, *others, 2])  # 1 among the nearest, 2 beyond
+    torch.testing.assert_close(depth, torch.full((H, W), 4.0, dtype=depth.dtype))
 
 
 def test_a_colmap_scene_carries_its_points_into_normalised_units(tmp_path: Path) -> None:

@@ -81,8 +81,8 @@ class TargetPriors:
     samples are placed as render places them (depth_prior; round 20, 5 minutes, median of 3 seeds: flower +0.24
     dB, room level).
 
-    A view's prior is made as render makes a novel view's: from the points two other usable views observe and
-    one of its PRIOR_VIEWS nearest usable views does, never from the view's own observations.
+    A view's prior is made as render makes a novel view's: from the points two of its PRIOR_VIEWS nearest other
+    usable views observe, never from the view's own observations.
     """
 
     def __init__(self, scene: TrainScene, device: torch.device) -> None:
@@ -93,7 +93,7 @@ class TargetPriors:
             prior = None
             if points is not None and others:
                 order = nearest_views(scene.cameras.c2w[target], scene.cameras.c2w[others], PRIOR_VIEWS, scene.method)
-                prior = view_prior(points, scene.cameras.subset([target]), others, [others[i] for i in order])
+                prior = view_prior(points, scene.cameras.subset([target]), [others[i] for i in order])
             self.flat[target] = None if prior is None else prior.reshape(-1).to(device, torch.float32)  # [H * W]
 
     def guide(self, target: int, pixels: torch.Tensor) -> torch.Tensor | None:
