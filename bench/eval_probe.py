@@ -17,7 +17,7 @@ line per capture.
 
 --prior-rule round19 makes each frame's SfM depth prior as rounds 19-24 did: from the points that two of every
 reference photo (any view eval does not hold out) observe and one of the frame's 10 nearest references does.
-Since round 25 the rule is two of the frame's 10 nearest references (depth_prior.view_prior).
+Since round 25 the rule is two of the frame's references, one of them among its 10 nearest (depth_prior.view_prior).
 """
 from __future__ import annotations
 
