@@ -78,9 +78,10 @@ def choose(renderer: ViewRenderer, camera, near: float, far: float, exclude: lis
 
 
 def render(self: ViewRenderer, camera, near: float, far: float, exclude: list[int], views: int | None = None):
-    """ViewRenderer.render with the references chosen by RULE."""
+    """ViewRenderer.render with the references chosen by RULE (and the SfM prior of those references, as eval)."""
     refs = choose(self, camera, near, far, exclude, views or self.k)
-    return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts), refs
+    return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts,
+                        self._prior(camera, refs)), refs
 
 
 def add_eval_arguments(parser: argparse.ArgumentParser) -> None:
