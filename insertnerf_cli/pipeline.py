@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+import torch
 from tqdm import tqdm
 
 from .atomic import write_bytes
@@ -179,13 +180,16 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     extra = [INDEX_HTML] + ([POINTCLOUD_PLY] if config.pointcloud_points is not None else [])
     claim_render_outputs(out_dir, len(path), config.depth_format, *extra)
     write_state(out_dir, state)
+    renderer = ViewRenderer(model, scene, (path.cameras.height, path.cameras.width), config.views, config.device,
+                            config.chunk, config.exact, config.sfm_depth)
+    path = replace(path, far=torch.tensor([renderer.far_bound(path.cameras.subset([i]), float(path.far[i]),
+                                                              _exclude(path, i)) for i in range(len(path))],
+                                          dtype=path.far.dtype))
     near, far = path.near / similarity.scale, path.far / similarity.scale  # [F] in the scene's units
     scale = depth_scale_for(float(far.max())) if config.depth_format == "png16" else 1.0
     write_cameras_json(out_dir / CAMERAS_JSON, user_cams, near, far, scale, config.depth_format,
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               "normalization": similarity.to_json()})
-    renderer = ViewRenderer(model, scene, (path.cameras.height, path.cameras.width), config.views, config.device,
-                            config.chunk, config.exact, config.sfm_depth)
     rendered, resumed, seconds, clipped = _render_frames(renderer, path, out_dir, similarity.scale, scale,
                                                          config.depth_format)
     files = [frame_paths(out_dir, i, config.depth_format) for i in range(len(path))]
@@ -222,8 +226,8 @@ def _render_frames(renderer: ViewRenderer, path: CameraPath, out_dir: Path, simi
     with bar:
         for i in todo:
             start = time.perf_counter()
-            exclude = [path.source_index[i]] if path.source_index is not None else []
-            out, _ = renderer.render(path.cameras.subset([i]), float(path.near[i]), float(path.far[i]), exclude)
+            out, _ = renderer.render(path.cameras.subset([i]), float(path.near[i]), float(path.far[i]),
+                                     _exclude(path, i))
             depth = out.depth.double().cpu().numpy()
             valid = out.opacity.cpu().numpy() >= MIN_DEPTH_OPACITY
             if depth_format == "npy":
@@ -238,3 +242,8 @@ def _render_frames(renderer: ViewRenderer, path: CameraPath, out_dir: Path, simi
             bar.set_postfix_str(f"last frame {took:.1f} s", refresh=False)
             bar.update(1)
     return len(todo), resumed, seconds, clipped
+
+
+def _exclude(path: CameraPath, frame: int) -> list[int]:
+    """The input views frame ``frame`` may not be rendered from: for the "input" path, the photo it re-renders."""
+    return [path.source_index[frame]] if path.source_index is not None else []

@@ -109,13 +109,22 @@ class ViewRenderer:
 
     def render(self, camera: Cameras, near: float, far: float, exclude: list[int], views: int | None = None):
         """(ImageOutput of ``camera`` (1), the reference indices used) from its ``views`` (default: the
-        renderer's count) nearest references; never uses an index in ``exclude``."""
+        renderer's count) nearest references; never uses an index in ``exclude``. The samples lie within
+        ``near`` and far_bound(), which covers the frame's SfM prior."""
+        from .depth_prior import covering_far
         from .render import render_image
 
         refs = self.references(camera.c2w[0], exclude, views)
         prior = self._prior(camera, refs)
-        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts,
-                            prior), refs
+        return render_image(self.model, self._encoded(refs), camera, near, covering_far(far, prior), self.chunk,
+                            self.shortcuts, prior), refs
+
+    def far_bound(self, camera: Cameras, far: float, exclude: list[int], views: int | None = None) -> float:
+        """The far bound render() draws ``camera``'s samples within: ``far``, raised to cover the frame's SfM prior
+        (depth_prior.covering_far), so that a caller can size its depth files before the frames exist."""
+        from .depth_prior import covering_far
+
+        return covering_far(far, self._prior(camera, self.references(camera.c2w[0], exclude, views)))
 
     def _prior(self, camera: Cameras, refs: list[int]) -> torch.Tensor | None:
         """[H, W] the SfM depth prior of ``camera``, or None: depth_prior.view_prior of the frame's references

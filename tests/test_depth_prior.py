@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from insertnerf_cli.cameras import Cameras, intrinsics
-from insertnerf_cli.depth_prior import PRIOR_VIEWS, guide_weights, prior_depth, view_prior
+from insertnerf_cli.depth_prior import (PRIOR_FAR_MARGIN, PRIOR_VIEWS, covering_far, guide_weights, prior_depth,
+                                        view_prior)
 from insertnerf_cli.sampling import RaySamples, importance_samples
 from insertnerf_cli.scenes import load_scene, normalize_scene
 from insertnerf_cli.scenes.points import ScenePoints
@@ -62,6 +63,48 @@ def test_guide_weights_moves_a_share_toward_the_prior_and_keeps_the_total() -> N
                               jitter=False, near=t[:1, 0], far=t[:1, -1])
     assert int(((fine.t - 4.0).abs() < 0.4).sum()) >= 10  # most fine samples now sit around the prior
     assert torch.equal(guide_weights(weights, t, prior, share=0.0), weights)
+
+
+def test_the_far_bound_covers_the_prior_past_it_and_is_never_lowered() -> None:
+    prior = torch.full((H, W), 3.0)
+    assert covering_far(2.0, prior) == pytest.approx(3.0 * PRIOR_FAR_MARGIN)  # the band around 3 fits inside
+    assert covering_far(10.0, prior) == 10.0
+    assert covering_far(2.0, None) == 2.0 and covering_far(2.0, torch.full((H, W), math.nan)) == 2.0
+    stray = prior.clone()
+    stray.view(-1)[: H * W // 200] = 100.0  # half a percent of the pixels: stray points do not set the bound
+    assert covering_far(2.0, stray) == pytest.approx(3.0 * PRIOR_FAR_MARGIN)
+
+
+def test_render_draws_its_samples_out_to_points_past_the_scenes_far_bound(tmp_path: Path) -> None:
+    """An LLFF scene whose far bounds stop short of its COLMAP points (mold_gold_cape's, round 26): each frame's
+    far bound in cameras.json reaches past the points it sees, and the depth maps' scale holds it."""
+    import json
+    from dataclasses import replace
+
+    from scene_fixtures import write_llff
+    from test_render_cli import make_checkpoint, run
+
+    known = known_scene(6)
+    root = write_colmap(tmp_path / "s", known)
+    write_llff(root, replace(known, far=known.near + 0.3 * (known.far - known.near)))
+    checkpoint = make_checkpoint(tmp_path / "tiny.pt")
+    bounds = {}
+    for flag in ("--sfm-depth", "--no-sfm-depth"):
+        out = tmp_path / flag
+        result = run("render", root, "--out", out, "--checkpoint", checkpoint, "--device", "cpu", "--resolution",
+                     16, "--views", 3, "--frames", 3, flag)
+        assert result.exit_code == 0, result.output
+        cams = json.loads((out / "cameras.json").read_text())
+        frames = cams["frames"]
+        c2w = np.array([f["transform_matrix"] for f in frames])  # nerfstudio (OpenGL) convention
+        depth = -np.einsum("fij,pj->fpi", np.linalg.inv(c2w)[:, :3, :3], known.points)[..., 2] - \
+            np.linalg.inv(c2w)[:, None, 2, 3]  # [F, P]: OpenGL cameras look down -z
+        far = np.array([f["far"] for f in frames])
+        assert far.max() * 1.01 <= 65535 * cams["depth_unit_scale_factor"]  # no valid depth is clipped
+        bounds[flag] = far, depth.max(axis=1)
+    raised, given = bounds["--sfm-depth"][0], bounds["--no-sfm-depth"][0]
+    assert (raised >= given - 1e-9).all() and (raised > given * 1.2).all()  # every frame's bound cut the points
+    assert (raised <= PRIOR_FAR_MARGIN * bounds["--sfm-depth"][1] + 1e-6).all()  # no farther than they need
 
 
 def test_points_seen_from_counts_only_the_allowed_views() -> None:

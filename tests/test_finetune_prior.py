@@ -75,3 +75,34 @@ def test_points_a_caller_already_has_are_used_instead_of_the_scenes_own(colmap_s
     finetune(colmap_scene, tmp_path / "own.pt", config, torch.device("cpu"), base=base)
     assert seen[0] is given
     torch.testing.assert_close(seen[1].xyz, own.xyz)
+
+
+def test_each_target_is_drawn_out_to_the_far_bound_render_would_give_it(tmp_path, monkeypatch):
+    """Round 26: where a scene's far bounds stop short of its points, render raises a frame's far bound to cover
+    its prior; the fine-tune trains each target's rays within the same raised bound."""
+    from dataclasses import replace
+
+    from scene_fixtures import write_llff
+
+    known = known_scene(9)
+    root = write_colmap(tmp_path / "tight", known)
+    write_llff(root, replace(known, far=known.near + 0.3 * (known.far - known.near)))
+    given = finetune_scene(root, 32).far
+    base = make_checkpoint(tmp_path / "base.pt")
+    fars = []
+    real_forward = finetune_loop.InsertNeRF.forward
+
+    def recording_forward(self, encoded, rays, train, guide=None):
+        fars.append(float(rays.far[0]))
+        return real_forward(self, encoded, rays, train, guide)
+
+    monkeypatch.setattr(finetune_loop.InsertNeRF, "forward", recording_forward)
+    for sfm_depth in (True, False):
+        fars.clear()
+        config = FinetuneConfig(minutes=None, steps=4, rays=16, views=3, resolution=32, sfm_depth=sfm_depth)
+        finetune(root, tmp_path / f"ft_{sfm_depth}.pt", config, torch.device("cpu"), base=base)
+        nearest = [float((given - f).abs().min()) for f in fars]
+        if sfm_depth:
+            assert min(nearest) > 1e-3 and min(fars) > float(given.min())  # raised, as every target's bound cut
+        else:
+            assert max(nearest) < 1e-5  # each step's far bound is its target's own

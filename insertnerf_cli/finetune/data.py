@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..depth_prior import PRIOR_VIEWS, view_prior
+from ..depth_prior import PRIOR_VIEWS, covering_far, view_prior
 from ..errors import UserError
 from ..model import EncodedViews, InsertNeRF, SourceViews
 from ..view_renderer import colour_size
@@ -82,11 +82,13 @@ class TargetPriors:
     dB, room level).
 
     A view's prior is made as render makes a novel view's: from the points two of its PRIOR_VIEWS nearest other
-    usable views observe, never from the view's own observations.
+    usable views observe, never from the view's own observations. ``far`` [N] holds the scene's far bounds with
+    each usable view's raised to cover its prior, as render raises a frame's (depth_prior.covering_far).
     """
 
     def __init__(self, scene: TrainScene, device: torch.device) -> None:
         self.flat: dict[int, torch.Tensor | None] = {}
+        self.far = scene.far.clone()
         points = scene.scene.points
         for target in scene.train_ids:
             others = [i for i in scene.train_ids if i != target]
@@ -94,6 +96,7 @@ class TargetPriors:
             if points is not None and others:
                 order = nearest_views(scene.cameras.c2w[target], scene.cameras.c2w[others], PRIOR_VIEWS, scene.method)
                 prior = view_prior(points, scene.cameras.subset([target]), [others[i] for i in order])
+                self.far[target] = covering_far(float(scene.far[target]), prior)
             self.flat[target] = None if prior is None else prior.reshape(-1).to(device, torch.float32)  # [H * W]
 
     def guide(self, target: int, pixels: torch.Tensor) -> torch.Tensor | None:

@@ -161,6 +161,8 @@ class _Run:
         self.frozen = None if config.train_encoder else FrozenFeatures(model, scene, self.cache, config.colour_scale)
         self.device = model.background.device
         self.priors = TargetPriors(scene, self.device) if config.sfm_depth else None
+        if self.priors is not None:  # each target's samples within the far bound render would give it
+            self.scene = replace(scene, far=self.priors.far)
         self.steps_done = 0
 
     def step(self) -> LossTerms:

@@ -1,0 +1,97 @@
+"""Probe: eval's default protocol with each frame's far bound raised to cover its SfM depth prior (issue 27,
+round 26: a capture's LLFF far bound can stop short of background its references triangulate, and the fine
+samples, drawn within [near, far], then cannot reach it), optionally with the infinity sample switched on.
+
+Inference only, in this process: ViewRenderer.render is patched; scene files and weights are untouched. Every
+held-out view, 256 px, as `insertnerf eval`.
+
+    OMP_NUM_THREADS=2 python3 bench/far_prior_probe.py --captures mold_gold_cape --margins 0,1.1 --views 10
+    OMP_NUM_THREADS=2 python3 bench/far_prior_probe.py --infinity --margins 1.1
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import insertnerf_cli.evaluate as evaluate  # noqa: E402
+from insertnerf_cli.render import render_image  # noqa: E402
+from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+
+
+def covering_far(far: float, prior: torch.Tensor | None, margin: float, quantile: float) -> float:
+    """``far``, raised to ``margin`` x the ``quantile`` of the prior's finite depths (margin 0: unchanged)."""
+    if prior is None or margin <= 0:
+        return far
+    depths = prior[torch.isfinite(prior)]
+    if depths.numel() == 0:
+        return far
+    return max(far, margin * float(depths.quantile(quantile)))
+
+
+def covering_near(near: float, prior: torch.Tensor | None, margin: float, quantile: float) -> float:
+    """``near``, lowered to the ``1 - quantile`` of the prior's finite depths / ``margin`` (margin 0: unchanged)."""
+    if prior is None or margin <= 0:
+        return near
+    depths = prior[torch.isfinite(prior)]
+    if depths.numel() == 0:
+        return near
+    return min(near, float(depths.quantile(1.0 - quantile)) / margin)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--captures", default="beer,room,flower,mold_gold_cape",
+                        help="dev capture names, or scene folders (a name with a slash)")
+    parser.add_argument("--margins", default="0,1.1", help="comma-separated: far >= margin x the prior's quantile")
+    parser.add_argument("--quantile", type=float, default=0.99)
+    parser.add_argument("--views", default="10")
+    parser.add_argument("--infinity", action="store_true", help="switch the infinity sample on at inference")
+    parser.add_argument("--near", action="store_true", help="also lower the near bound to cover the prior")
+    parser.add_argument("--checkpoint", type=Path, default=None)
+    args = parser.parse_args()
+    margin = [0.0]
+    raised: list[float] = []
+
+    def render(self, camera, near, far, exclude, views=None):
+        refs = self.references(camera.c2w[0], exclude, views)
+        prior = self._prior(camera, refs)
+        wide = covering_far(far, prior, margin[0], args.quantile)
+        raised.append(wide / far)
+        if args.near:
+            near = covering_near(near, prior, margin[0], args.quantile)
+        return render_image(self.model, self._encoded(refs), camera, near, wide, self.chunk, self.shortcuts,
+                            prior), refs
+
+    ViewRenderer.render = render
+    if args.infinity:
+        load = evaluate.load_model
+
+        def load_with_infinity(*a, **k):
+            model = load(*a, **k)
+            model.config = dataclasses.replace(model.config, infinity_sample=True)
+            return model
+
+        evaluate.load_model = load_with_infinity
+    counts = tuple(int(n) for n in args.views.split(","))
+    for m in (float(f) for f in args.margins.split(",")):
+        margin[0] = m
+        for capture in args.captures.split(","):
+            raised.clear()
+            config = evaluate.EvalConfig(views=counts if len(counts) > 1 else counts[0], checkpoint=args.checkpoint)
+            run = evaluate.run_eval(REALDATA / capture if "/" not in capture else Path(capture), config)
+            scores = " / ".join(f"{r.psnr:.2f} ({r.ssim:.3f})" for r in run.reports)
+            moved = sum(r > 1.0 for r in raised)
+            print(f"margin {m:g}{' + infinity' if args.infinity else ''} | {capture} | views {args.views} | "
+                  f"{scores} | far raised in {moved}/{len(raised)} renders", flush=True)
+
+
+if __name__ == "__main__":
+    main()
