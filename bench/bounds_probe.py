@@ -22,6 +22,18 @@ from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 
 
+def with_infinity() -> None:
+    """Patch eval's model loader so every generator it loads renders with the infinity sample on."""
+    load = evaluate.load_model
+
+    def load_with_infinity(*a, **k):
+        model = load(*a, **k)
+        model.config = dataclasses.replace(model.config, infinity_sample=True)
+        return model
+
+    evaluate.load_model = load_with_infinity
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--captures", default="beer,room,flower,mold_gold_cape")
@@ -34,14 +46,7 @@ def main() -> None:
     ViewRenderer.render = lambda self, camera, near, far, exclude, views=None: render(
         self, camera, near, far * factor[0], exclude, views)
     if args.infinity:
-        load = evaluate.load_model
-
-        def load_with_infinity(*a, **k):
-            model = load(*a, **k)
-            model.config = dataclasses.replace(model.config, infinity_sample=True)
-            return model
-
-        evaluate.load_model = load_with_infinity
+        with_infinity()
     for scale in (float(f) for f in args.far_scale.split(",")):
         factor[0] = scale
         for capture in args.captures.split(","):

@@ -3,7 +3,8 @@ round 26: a capture's LLFF far bound can stop short of background its references
 samples, drawn within [near, far], then cannot reach it), optionally with the infinity sample switched on.
 
 Inference only, in this process: ViewRenderer.render is patched; scene files and weights are untouched. Every
-held-out view, 256 px, as `insertnerf eval`.
+held-out view, 256 px, as `insertnerf eval`. `--margins 0` renders with the far bound as given (round 25);
+margin 1.1 at quantile 0.99 is what render and eval now do (depth_prior.covering_far).
 
     OMP_NUM_THREADS=2 python3 bench/far_prior_probe.py --captures mold_gold_cape --margins 0,1.1 --views 10
     OMP_NUM_THREADS=2 python3 bench/far_prior_probe.py --infinity --margins 1.1
@@ -11,39 +12,31 @@ held-out view, 256 px, as `insertnerf eval`.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import insertnerf_cli.evaluate as evaluate  # noqa: E402
+from bounds_probe import with_infinity  # noqa: E402
 from insertnerf_cli.render import render_image  # noqa: E402
 from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 
 
-def covering_far(far: float, prior: torch.Tensor | None, margin: float, quantile: float) -> float:
-    """``far``, raised to ``margin`` x the ``quantile`` of the prior's finite depths (margin 0: unchanged)."""
-    if prior is None or margin <= 0:
-        return far
-    depths = prior[torch.isfinite(prior)]
-    if depths.numel() == 0:
-        return far
-    return max(far, margin * float(depths.quantile(quantile)))
-
-
-def covering_near(near: float, prior: torch.Tensor | None, margin: float, quantile: float) -> float:
-    """``near``, lowered to the ``1 - quantile`` of the prior's finite depths / ``margin`` (margin 0: unchanged)."""
-    if prior is None or margin <= 0:
-        return near
-    depths = prior[torch.isfinite(prior)]
-    if depths.numel() == 0:
-        return near
-    return min(near, float(depths.quantile(1.0 - quantile)) / margin)
+def covering(bound: float, prior: torch.Tensor | None, margin: float, quantile: float, far: bool) -> float:
+    """The far bound raised to ``margin`` x the ``quantile`` of the prior's finite depths, or (``far`` False) the
+    near bound lowered to the ``1 - quantile`` / ``margin``; margin 0 or no prior: ``bound`` unchanged."""
+    depths = None if prior is None or margin <= 0 else prior[torch.isfinite(prior)]
+    if depths is None or depths.numel() == 0:
+        return bound
+    if far:
+        return max(bound, margin * float(depths.quantile(quantile)))
+    return min(bound, float(depths.quantile(1.0 - quantile)) / margin)
 
 
 def main() -> None:
@@ -63,23 +56,16 @@ def main() -> None:
     def render(self, camera, near, far, exclude, views=None):
         refs = self.references(camera.c2w[0], exclude, views)
         prior = self._prior(camera, refs)
-        wide = covering_far(far, prior, margin[0], args.quantile)
+        wide = covering(far, prior, margin[0], args.quantile, far=True)
         raised.append(wide / far)
         if args.near:
-            near = covering_near(near, prior, margin[0], args.quantile)
+            near = covering(near, prior, margin[0], args.quantile, far=False)
         return render_image(self.model, self._encoded(refs), camera, near, wide, self.chunk, self.shortcuts,
                             prior), refs
 
     ViewRenderer.render = render
     if args.infinity:
-        load = evaluate.load_model
-
-        def load_with_infinity(*a, **k):
-            model = load(*a, **k)
-            model.config = dataclasses.replace(model.config, infinity_sample=True)
-            return model
-
-        evaluate.load_model = load_with_infinity
+        with_infinity()
     counts = tuple(int(n) for n in args.views.split(","))
     for m in (float(f) for f in args.margins.split(",")):
         margin[0] = m
