@@ -14,10 +14,13 @@ line per capture.
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --depth-bounds --root scratch/syn_obj --captures scene_00000
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --sample-views 12 --max-views 3 --views 10,16
     OMP_NUM_THREADS=1 python3 bench/eval_probe.py --prior-rule round19 --views 3,10
+    OMP_NUM_THREADS=1 python3 bench/eval_probe.py --reach-px 24 --captures mold_gold_cape,room
 
 --prior-rule round19 makes each frame's SfM depth prior as rounds 19-24 did: from the points that two of every
 reference photo (any view eval does not hold out) observe and one of the frame's 10 nearest references does.
 Since round 25 the rule is two of the frame's references, one of them among its 10 nearest (depth_prior.view_prior).
+It also renders within the view's own far bound, as rounds 19-25 did (round 26 raises it to cover the prior).
+--reach-px carries each SfM splat's depth that far (at 256 px; the library's 12) into the pixels around it (round 26).
 """
 from __future__ import annotations
 
@@ -31,7 +34,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli import scenes, view_renderer  # noqa: E402
+from insertnerf_cli import depth_prior, scenes, view_renderer  # noqa: E402
 from insertnerf_cli.checkpoint import bundled_checkpoint, export_weights  # noqa: E402
 from insertnerf_cli.model import insertnerf  # noqa: E402
 from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
@@ -70,8 +73,12 @@ def main() -> None:
     parser.add_argument("--prior-rule", choices=("references", "round19"), default="references",
                         help="which points make a frame's SfM prior: two of its references observe them (shipped), "
                              "or two of any non-held-out photo and one of its references (rounds 19-24)")
+    parser.add_argument("--reach-px", type=float, default=None,
+                        help="carry each splat's depth this many pixels (at 256 px) into the empty pixels around it")
     args = parser.parse_args()
     checkpoint = args.checkpoint
+    if args.reach_px is not None:  # read by depth_prior.prior_depth at each call
+        depth_prior.REACH_FRACTION = args.reach_px / 256
     if args.prior_rule == "round19":
         patch_round19_prior()
     if args.sample_views is not None:  # the config's own setting, in a copy: whatever the checkpoint carries
@@ -98,7 +105,7 @@ def main() -> None:
               f"rule {args.method} "
               f"from references {args.reference_bounds} weight power {args.weight_power} "
               f"in disparity {args.in_disparity} sample views {args.sample_views} overlap {args.overlap_weight} "
-              f"prior rule {args.prior_rule} | "
+              f"prior rule {args.prior_rule} reach {args.reach_px} | "
               f"{capture} | {cells}", flush=True)
 
 

@@ -28,14 +28,17 @@ from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 
 
-def covering(bound: float, prior: torch.Tensor | None, margin: float, quantile: float, far: bool) -> float:
+def covering(bound: float, prior: torch.Tensor | None, margin: float, quantile: float, far: bool,
+             only_past: bool = False) -> float:
     """The far bound raised to ``margin`` x the ``quantile`` of the prior's finite depths, or (``far`` False) the
-    near bound lowered to the ``1 - quantile`` / ``margin``; margin 0 or no prior: ``bound`` unchanged."""
+    near bound lowered to the ``1 - quantile`` / ``margin``; margin 0 or no prior: ``bound`` unchanged.
+    ``only_past``: the far bound moves only where the quantile itself lies past it."""
     depths = None if prior is None or margin <= 0 else prior[torch.isfinite(prior)]
     if depths is None or depths.numel() == 0:
         return bound
     if far:
-        return max(bound, margin * float(depths.quantile(quantile)))
+        reach = float(depths.quantile(quantile))
+        return bound if only_past and reach <= bound else max(bound, margin * reach)
     return min(bound, float(depths.quantile(1.0 - quantile)) / margin)
 
 
@@ -48,6 +51,10 @@ def main() -> None:
     parser.add_argument("--views", default="10")
     parser.add_argument("--infinity", action="store_true", help="switch the infinity sample on at inference")
     parser.add_argument("--near", action="store_true", help="also lower the near bound to cover the prior")
+    parser.add_argument("--only-past", action="store_true",
+                        help="raise the far bound only where the prior's quantile lies past it")
+    parser.add_argument("--far-views", type=int, default=None,
+                        help="take the far bound from the prior of the frame's nearest K references only")
     parser.add_argument("--checkpoint", type=Path, default=None)
     args = parser.parse_args()
     margin = [0.0]
@@ -56,7 +63,9 @@ def main() -> None:
     def render(self, camera, near, far, exclude, views=None):
         refs = self.references(camera.c2w[0], exclude, views)
         prior = self._prior(camera, refs)
-        wide = covering(far, prior, margin[0], args.quantile, far=True)
+        bounding = prior if args.far_views is None or len(refs) <= args.far_views else \
+            self._prior(camera, refs[:args.far_views])
+        wide = covering(far, bounding, margin[0], args.quantile, far=True, only_past=args.only_past)
         raised.append(wide / far)
         if args.near:
             near = covering(near, prior, margin[0], args.quantile, far=False)
@@ -75,7 +84,9 @@ def main() -> None:
             run = evaluate.run_eval(REALDATA / capture if "/" not in capture else Path(capture), config)
             scores = " / ".join(f"{r.psnr:.2f} ({r.ssim:.3f})" for r in run.reports)
             moved = sum(r > 1.0 for r in raised)
-            print(f"margin {m:g}{' + infinity' if args.infinity else ''} | {capture} | views {args.views} | "
+            rule = (f"margin {m:g}{' only past' if args.only_past else ''}{' + infinity' if args.infinity else ''}"
+                    f"{'' if args.far_views is None else f' far from {args.far_views} views'}")
+            print(f"{rule} | {capture} | views {args.views} | "
                   f"{scores} | far raised in {moved}/{len(raised)} renders", flush=True)
 
 

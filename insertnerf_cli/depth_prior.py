@@ -30,11 +30,13 @@ if TYPE_CHECKING:
 # coarse pass has them (bench/sfm_prior_probe.py; docs/model-card.md round 18).
 GUIDE_SHARE = 0.75
 GUIDE_WIDTH = 0.05
-# A frame's far bound is raised to reach two band widths past its prior's farthest depths (all but the farthest
-# 1 % of its prior's pixels, which stray points hold), so the band fits inside [near, far] where the fine samples
-# are drawn. A capture's own far bound can stop short of the background its references triangulate: 26 of 30
-# frames on mold_gold_cape (round 26, fast generator at 10 views: mold_gold_cape +0.18 dB, room +0.16, beer
-# +0.06; the farthest depth itself, or a margin of 1.3, scored less; lowering the near bound alike lost room 0.18).
+# A frame whose SfM points lie past its far bound (more than 1 % of its prior's pixels: stray points hold fewer) gets
+# that bound raised to two band widths past them, so the band fits inside [near, far] where the fine samples are
+# drawn. A capture's own far bound can stop short of the background its references triangulate: 52 of
+# mold_gold_cape's 60 eval frames at 3-16 views (round 26, fast generator at 10 views: +0.19 dB). Frames whose points lie inside it keep it:
+# raising room's by the margin alone (3-5 %) moved single views by -0.40..+0.26 dB, the coarse grid's shift, not
+# the scene; lowering the near bound alike lost room 0.18 dB; the farthest point instead of the 99th percentile,
+# or a margin of 1.3, scored less on mold_gold_cape (bench/far_prior_probe.py).
 PRIOR_FAR_QUANTILE = 0.99
 PRIOR_FAR_MARGIN = 1.0 + 2.0 * GUIDE_WIDTH
 # Splat radius and how far a splat's depth is carried into the empty pixels around it, as fractions of the
@@ -105,14 +107,16 @@ def _fill(depth: Tensor, reach: int) -> Tensor:
 
 def covering_far(far: float, prior: Tensor | None) -> float:
     """The far bound a frame with SfM depth ``prior`` [H, W] (NaN where none; None: no prior) is rendered with:
-    ``far``, raised so the guide's band around the prior's farthest depths lies inside it; never lowered."""
+    ``far``, or where the prior's farthest depths (its PRIOR_FAR_QUANTILE) lie past it, a bound that holds the
+    guide's band around them; never lowered."""
     if prior is None:
         return far
     depths = prior.detach().cpu().numpy()
     depths = depths[np.isfinite(depths)]  # numpy: torch.quantile refuses more than 2^24 values (a 20 MP frame)
     if depths.size == 0:
         return far
-    return max(far, PRIOR_FAR_MARGIN * float(np.quantile(depths, PRIOR_FAR_QUANTILE)))
+    reach = float(np.quantile(depths, PRIOR_FAR_QUANTILE))
+    return far if reach <= far else PRIOR_FAR_MARGIN * reach
 
 
 def guide_weights(weights: Tensor, t: Tensor, prior: Tensor, share: float = GUIDE_SHARE,

@@ -65,10 +65,11 @@ def test_guide_weights_moves_a_share_toward_the_prior_and_keeps_the_total() -> N
     assert torch.equal(guide_weights(weights, t, prior, share=0.0), weights)
 
 
-def test_the_far_bound_covers_the_prior_past_it_and_is_never_lowered() -> None:
+def test_the_far_bound_moves_only_for_points_past_it_and_then_covers_them() -> None:
     prior = torch.full((H, W), 3.0)
     assert covering_far(2.0, prior) == pytest.approx(3.0 * PRIOR_FAR_MARGIN)  # the band around 3 fits inside
     assert covering_far(10.0, prior) == 10.0
+    assert covering_far(3.1, prior) == 3.1  # the points lie inside: the bound stays, though the band reaches past
     assert covering_far(2.0, None) == 2.0 and covering_far(2.0, torch.full((H, W), math.nan)) == 2.0
     stray = prior.clone()
     stray.view(-1)[: H * W // 200] = 100.0  # half a percent of the pixels: stray points do not set the bound
