@@ -30,13 +30,13 @@ if TYPE_CHECKING:
 # coarse pass has them (bench/sfm_prior_probe.py; docs/model-card.md round 18).
 GUIDE_SHARE = 0.75
 GUIDE_WIDTH = 0.05
-# A frame whose SfM points lie past its far bound (more than 1 % of its prior's pixels: stray points hold fewer) gets
-# that bound raised to two band widths past them, so the band fits inside [near, far] where the fine samples are
-# drawn. A capture's own far bound can stop short of the background its references triangulate: 52 of
-# mold_gold_cape's 60 eval frames at 3-16 views (round 26, fast generator at 10 views: +0.19 dB). Frames whose points lie inside it keep it:
-# raising room's by the margin alone (3-5 %) moved single views by -0.40..+0.26 dB, the coarse grid's shift, not
-# the scene; lowering the near bound alike lost room 0.18 dB; the farthest point instead of the 99th percentile,
-# or a margin of 1.3, scored less on mold_gold_cape (bench/far_prior_probe.py).
+# A frame whose SfM points lie past its far bound (more than 1 % of its prior's pixels: stray points hold fewer)
+# gets that bound raised to two band widths past them, so the band fits inside [near, far] where the fine samples
+# are drawn. A capture's own far bound can stop short of the background its references triangulate: 52 of
+# mold_gold_cape's 60 eval frames at 3-16 views (round 26, at 10 views: fast +0.19 dB, full +0.42). Frames whose
+# points lie inside it keep it: raising room's by the margin alone (3-5 %) moved single views by -0.40..+0.26 dB,
+# the coarse grid's shift, not the scene; lowering the near bound alike lost room 0.18 dB; the farthest point
+# instead of the 99th percentile, or a margin of 1.3, scored less on mold_gold_cape (bench/far_prior_probe.py).
 PRIOR_FAR_QUANTILE = 0.99
 PRIOR_FAR_MARGIN = 1.0 + 2.0 * GUIDE_WIDTH
 # Splat radius and how far a splat's depth is carried into the empty pixels around it, as fractions of the

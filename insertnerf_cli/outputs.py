@@ -272,6 +272,22 @@ def write_cameras_json(path: Path, cameras: Cameras, near: Tensor, far: Tensor, 
                                               for i in range(len(cameras))])
 
 
+def check_resumable_scale(out_dir: Path, frames: int, depth_scale: float) -> None:
+    """Finished depth PNGs may be kept only if cameras.json will read them with the scale they were written at
+    (a render's far bounds, and so its scale, follow the scene's points since round 26)."""
+    done = any((out_dir / "frames" / frame_name(i)).exists() for i in range(frames))
+    if not done:
+        return
+    try:
+        written = json.loads((out_dir / CAMERAS_JSON).read_text()).get("depth_unit_scale_factor")
+    except (OSError, ValueError, AttributeError):
+        written = None
+    if written != depth_scale:
+        raise UserError(f"{out_dir} holds depth maps written at another depth scale ({written} against "
+                        f"{depth_scale}: insertnerf changed since); pass --overwrite to render them again, or choose "
+                        "another --out")
+
+
 def same_cameras_as_written(path: Path, cameras: Cameras) -> bool:
     """Whether cameras.json at ``path`` holds exactly ``cameras`` (poses to 1e-6 of the scene size, sizes).
 

@@ -20,9 +20,10 @@ from .atomic import write_bytes
 from .config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from .lock import lock_output, releases_output_locks
 from .outdir import check_output
-from .outputs import (OWNER as RENDER_OWNER, CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, claim_render_outputs,
-                      depth_scale_for, depth_to_float, depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths,
-                      prepare_out_dir, write_cameras_json, write_frame, write_state, write_video)
+from .outputs import (OWNER as RENDER_OWNER, CAMERAS_JSON, POSES_DIR, VIDEOS, check_resumable, check_resumable_scale,
+                      claim_render_outputs, depth_scale_for, depth_to_float, depth_to_turbo, depth_to_uint16,
+                      ffmpeg_exe, frame_paths, prepare_out_dir, write_cameras_json, write_frame, write_state,
+                      write_video)
 from .paths import CameraPath, default_path_kind, make_path, with_reference_bounds
 from .report.html import duration
 from .view_renderer import ViewRenderer, checkpoint_path, load_model
@@ -187,6 +188,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
                                           dtype=path.far.dtype))
     near, far = path.near / similarity.scale, path.far / similarity.scale  # [F] in the scene's units
     scale = depth_scale_for(float(far.max())) if config.depth_format == "png16" else 1.0
+    check_resumable_scale(out_dir, len(path), scale)
     write_cameras_json(out_dir / CAMERAS_JSON, user_cams, near, far, scale, config.depth_format,
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               "normalization": similarity.to_json()})

@@ -185,6 +185,23 @@ def test_frames_of_a_changed_path_are_not_mixed(tmp_path):
     assert _render(scene, ckpt, out, "--frames", 2, "--overwrite").exit_code == 0
 
 
+def test_depth_maps_of_another_scale_are_not_mixed(scene_and_checkpoint, tmp_path):
+    # A render resumed after insertnerf changed how far a frame's bound reaches: the kept depth PNGs were written
+    # at the old scale, which the new cameras.json would misread.
+    scene, ckpt = scene_and_checkpoint
+    out = tmp_path / "views"
+    assert _render(scene, ckpt, out, "--frames", 2).exit_code == 0
+    (out / "frames" / "00001.png").unlink()
+    kept = (out / "depth" / "00000.png").read_bytes()
+    cams = json.loads((out / "cameras.json").read_text())
+    cams["depth_unit_scale_factor"] *= 2
+    (out / "cameras.json").write_text(json.dumps(cams))
+    result = _render(scene, ckpt, out, "--frames", 2)
+    assert result.exit_code == 1 and "depth scale" in result.output and "Traceback" not in result.output
+    assert (out / "depth" / "00000.png").read_bytes() == kept and not (out / "frames" / "00001.png").exists()
+    assert _render(scene, ckpt, out, "--frames", 2, "--overwrite").exit_code == 0
+
+
 def test_encodings_are_reused_while_the_reference_views_repeat(scene_and_checkpoint, tmp_path, monkeypatch):
     scene, ckpt = scene_and_checkpoint
     calls = []

@@ -82,8 +82,8 @@ class TargetPriors:
     dB, room level).
 
     A view's prior is made as render makes a novel view's: from the points two of its PRIOR_VIEWS nearest other
-    usable views observe, never from the view's own observations. ``far`` [N] holds the scene's far bounds with
-    each usable view's raised to cover its prior, as render raises a frame's (depth_prior.covering_far).
+    usable views observe, never from the view's own observations. ``far`` [N] holds the scene's far bounds, each
+    usable view's raised where its points lie past it, as render raises a frame's (depth_prior.covering_far).
     """
 
     def __init__(self, scene: TrainScene, device: torch.device) -> None:
