@@ -284,8 +284,8 @@ def check_resumable_scale(out_dir: Path, frames: int, depth_scale: float) -> Non
         written = None
     if written != depth_scale:
         raise UserError(f"{out_dir} holds depth maps written at another depth scale ({written} against "
-                        f"{depth_scale}: insertnerf changed since); pass --overwrite to render them again, or choose "
-                        "another --out")
+                        f"{depth_scale}: the frames' far bounds changed since, e.g. with an insertnerf upgrade); pass "
+                        "--overwrite to render them again, or choose another --out")
 
 
 def same_cameras_as_written(path: Path, cameras: Cameras) -> bool:

@@ -110,7 +110,7 @@ class ViewRenderer:
     def render(self, camera: Cameras, near: float, far: float, exclude: list[int], views: int | None = None):
         """(ImageOutput of ``camera`` (1), the reference indices used) from its ``views`` (default: the
         renderer's count) nearest references; never uses an index in ``exclude``. The samples lie within
-        ``near`` and far_bound(), which covers the frame's SfM prior."""
+        ``near`` and far_bound(): ``far``, raised where the frame's SfM points lie past it."""
         from .depth_prior import covering_far
         from .render import render_image
 
@@ -120,8 +120,8 @@ class ViewRenderer:
                             self.shortcuts, prior), refs
 
     def far_bound(self, camera: Cameras, far: float, exclude: list[int], views: int | None = None) -> float:
-        """The far bound render() draws ``camera``'s samples within: ``far``, raised to cover the frame's SfM prior
-        (depth_prior.covering_far), so that a caller can size its depth files before the frames exist."""
+        """The far bound render() draws ``camera``'s samples within: ``far``, raised where the frame's SfM points lie
+        past it (depth_prior.covering_far), so that a caller can size its depth files before the frames exist."""
         from .depth_prior import covering_far
 
         return covering_far(far, self._prior(camera, self.references(camera.c2w[0], exclude, views)))
