@@ -4,7 +4,7 @@ samples, drawn within [near, far], then cannot reach it), optionally with the in
 
 Inference only, in this process: ViewRenderer.render is patched; scene files and weights are untouched. Every
 held-out view, 256 px, as `insertnerf eval`. `--margins 0` renders with the far bound as given (round 25);
-margin 1.1 at quantile 0.99 is what render and eval now do (depth_prior.covering_far).
+`--only-past --margins 1.1` (quantile 0.99) is what render and eval now do (depth_prior.covering_far).
 
     OMP_NUM_THREADS=2 python3 bench/far_prior_probe.py --captures mold_gold_cape --margins 0,1.1 --views 10
     OMP_NUM_THREADS=2 python3 bench/far_prior_probe.py --infinity --margins 1.1
