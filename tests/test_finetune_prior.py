@@ -79,7 +79,7 @@ def test_points_a_caller_already_has_are_used_instead_of_the_scenes_own(colmap_s
 
 def test_each_target_is_drawn_out_to_the_far_bound_render_would_give_it(tmp_path, monkeypatch):
     """Round 26: where a scene's far bounds stop short of its points, render raises a frame's far bound to cover
-    its prior; the fine-tune trains each target's rays within the same raised bound."""
+    them; the fine-tune trains each target's rays within the bound render would give that view."""
     from dataclasses import replace
 
     from scene_fixtures import write_llff
