@@ -275,8 +275,7 @@ def write_cameras_json(path: Path, cameras: Cameras, near: Tensor, far: Tensor, 
 def check_resumable_scale(out_dir: Path, frames: int, depth_scale: float) -> None:
     """Finished depth PNGs may be kept only if cameras.json will read them with the scale they were written at
     (a render's far bounds, and so its scale, follow the scene's points since round 26)."""
-    done = any((out_dir / "frames" / frame_name(i)).exists() for i in range(frames))
-    if not done:
+    if not _frames_done(out_dir, frames):
         return
     try:
         written = json.loads((out_dir / CAMERAS_JSON).read_text()).get("depth_unit_scale_factor")
@@ -364,7 +363,11 @@ def read_state(state_file: Path) -> dict | None:
 
 def check_resumable(out_dir: Path, cameras: Cameras) -> None:
     """Finished frames may be kept only if they were rendered along the same cameras (user units)."""
-    done = any((out_dir / "frames" / frame_name(i)).exists() for i in range(len(cameras)))
-    if done and not same_cameras_as_written(out_dir / CAMERAS_JSON, cameras):
+    if _frames_done(out_dir, len(cameras)) and not same_cameras_as_written(out_dir / CAMERAS_JSON, cameras):
         raise UserError(f"{out_dir} holds frames of a different camera path (the scene's poses or insertnerf "
                         "changed since); pass --overwrite to render them again, or choose another --out")
+
+
+def _frames_done(out_dir: Path, frames: int) -> bool:
+    """Whether OUT already holds a finished frame of a ``frames``-frame path (a run to resume)."""
+    return any((out_dir / "frames" / frame_name(i)).exists() for i in range(frames))
