@@ -25,6 +25,7 @@ import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from insertnerf_cli.depth_prior import covering_far  # noqa: E402
 from insertnerf_cli.model.aggregate import angular_prior, reweigh  # noqa: E402
 from insertnerf_cli.model.consistency import colour_variance  # noqa: E402
 from insertnerf_cli.model.insertnerf import InsertNeRF  # noqa: E402
@@ -55,14 +56,17 @@ def reference_depth(renderer: ViewRenderer, index: int, exclude: list[int]) -> t
 
 
 def render(self: ViewRenderer, camera, near: float, far: float, exclude: list[int], views: int | None = None):
-    """ViewRenderer.render with the references' depth maps set for observe (in the encoding's sorted order)."""
+    """ViewRenderer.render with the references' depth maps set for observe (in the encoding's sorted order). The
+    references' own depth maps (reference_depth) are rendered without the SfM prior, as in round 15."""
     refs = self.references(camera.c2w[0], exclude, views)
     STATE["maps"] = None  # the depth maps' own renders test nothing
     maps = torch.stack([reference_depth(self, r, exclude) for r in sorted(refs)]) if SETTINGS["mode"] != "off" \
         else None
     STATE["maps"] = maps
+    prior = self._prior(camera, refs)  # as ViewRenderer.render: the SfM prior and the far bound it may raise
     try:
-        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts), refs
+        return render_image(self.model, self._encoded(refs), camera, near, covering_far(far, prior), self.chunk,
+                            self.shortcuts, prior), refs
     finally:
         STATE["maps"] = None
 
