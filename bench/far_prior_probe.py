@@ -29,16 +29,18 @@ REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 
 
 def covering(bound: float, prior: torch.Tensor | None, margin: float, quantile: float, far: bool,
-             only_past: bool = False) -> float:
+             only_past: bool = False, trigger: float | None = None) -> float:
     """The far bound raised to ``margin`` x the ``quantile`` of the prior's finite depths, or (``far`` False) the
     near bound lowered to the ``1 - quantile`` / ``margin``; margin 0 or no prior: ``bound`` unchanged.
-    ``only_past``: the far bound moves only where the quantile itself lies past it."""
+    ``only_past``: the far bound moves only where the quantile itself lies past it (``trigger``: where that
+    quantile of the prior does, e.g. 0.95: at least 5 % of the prior's pixels lie past the bound)."""
     depths = None if prior is None or margin <= 0 else prior[torch.isfinite(prior)]
     if depths is None or depths.numel() == 0:
         return bound
     if far:
         reach = float(depths.quantile(quantile))
-        return bound if only_past and reach <= bound else max(bound, margin * reach)
+        past = reach if trigger is None else float(depths.quantile(trigger))
+        return bound if only_past and past <= bound else max(bound, margin * reach)
     return min(bound, float(depths.quantile(1.0 - quantile)) / margin)
 
 
@@ -53,6 +55,8 @@ def main() -> None:
     parser.add_argument("--near", action="store_true", help="also lower the near bound to cover the prior")
     parser.add_argument("--only-past", action="store_true",
                         help="raise the far bound only where the prior's quantile lies past it")
+    parser.add_argument("--trigger", type=float, default=None,
+                        help="with --only-past: raise only where this quantile of the prior lies past far")
     parser.add_argument("--far-views", type=int, default=None,
                         help="take the far bound from the prior of the frame's nearest K references only")
     parser.add_argument("--checkpoint", type=Path, default=None)
@@ -65,7 +69,8 @@ def main() -> None:
         prior = self._prior(camera, refs)
         bounding = prior if args.far_views is None or len(refs) <= args.far_views else \
             self._prior(camera, refs[:args.far_views])
-        wide = covering(far, bounding, margin[0], args.quantile, far=True, only_past=args.only_past)
+        wide = covering(far, bounding, margin[0], args.quantile, far=True, only_past=args.only_past,
+                        trigger=args.trigger)
         raised.append(wide / far)
         if args.near:
             near = covering(near, prior, margin[0], args.quantile, far=False)
@@ -84,7 +89,8 @@ def main() -> None:
             run = evaluate.run_eval(REALDATA / capture if "/" not in capture else Path(capture), config)
             scores = " / ".join(f"{r.psnr:.2f} ({r.ssim:.3f})" for r in run.reports)
             moved = sum(r > 1.0 for r in raised)
-            rule = (f"margin {m:g}{' only past' if args.only_past else ''}{' + infinity' if args.infinity else ''}"
+            rule = (f"margin {m:g}{' only past' if args.only_past else ''}"
+                    f"{'' if args.trigger is None else f' trigger q{args.trigger:g}'}{' + infinity' if args.infinity else ''}"
                     f"{'' if args.far_views is None else f' far from {args.far_views} views'}")
             print(f"{rule} | {capture} | views {args.views} | "
                   f"{scores} | far raised in {moved}/{len(raised)} renders", flush=True)

@@ -19,6 +19,9 @@ from .common import overwrite_option, user_errors
 @click.option("--resolution", type=click.IntRange(min=8), default=200, show_default=True,
               help="Long side of the images in pixels (the aspect ratio is drawn per scene).")
 @click.option("--square", is_flag=True, help="Square images only (like NeRF-Synthetic).")
+@click.option("--fov", "fov", metavar="LOW:HIGH", callback=lambda ctx, param, value: _fov_range(value),
+              help="Field of view of the images' long side in degrees, drawn per scene from this range, e.g. 20:35 "
+                   "for zoomed or telephoto captures.  [default: 35:75]")
 @click.option("--layout", type=click.Choice(["object", "forward", "360", "handheld", "mixed"]), default="mixed",
               show_default=True, help="Camera layout; mixed draws one of the four per scene.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
@@ -35,7 +38,7 @@ from .common import overwrite_option, user_errors
 @overwrite_option
 @user_errors
 def synth(out_dir: Path, workers: int, overwrite: bool, square: bool, noise: bool, jitter: bool, jpeg: bool,
-          photo: bool, **options: object) -> None:
+          photo: bool, fov: tuple[float, float] | None, **options: object) -> None:
     """Render SCENES procedural scenes with exact cameras and depth into OUT_DIR (Blender format).
 
     Re-running the same command resumes an interrupted run; finished scenes are kept.
@@ -49,9 +52,23 @@ def synth(out_dir: Path, workers: int, overwrite: bool, square: bool, noise: boo
     if options["test_views"] is None:
         options["test_views"] = max(1, int(options["views"]) // 8)  # type: ignore[call-overload]
     config = SynthOptions(**options, aspects=(1.0,) if square else SynthOptions().aspects,  # type: ignore[arg-type]
-                          capture=CaptureOptions(noise=noise, jitter=jitter, jpeg=jpeg, photo=photo))
+                          capture=CaptureOptions(noise=noise, jitter=jitter, jpeg=jpeg, photo=photo),
+                          fov=fov or SynthOptions().fov)
     run = build_dataset(out_dir, config, workers=workers, overwrite=overwrite)
     speed = f" at {run.views_per_second:.1f} views/s" if run.rendered else ""
     kept = f" ({run.skipped} already there)" if run.skipped else ""
     click.echo(f"Rendered {run.rendered} scenes{speed}{kept} into {out_dir} (listed in manifest.json). "
                f"Train on them with: insertnerf train {out_dir} --out runs/synth")
+
+
+def _fov_range(text: str | None) -> tuple[float, float] | None:
+    """``LOW:HIGH`` (or one number, a fixed field of view) as degrees; the range's own limits are SynthOptions'."""
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(":"))
+    except ValueError:
+        values = ()
+    if len(values) not in (1, 2):
+        raise click.BadParameter(f"expected LOW:HIGH in degrees, e.g. 20:35; got {text!r}")
+    return (values[0], values[-1])

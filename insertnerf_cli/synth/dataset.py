@@ -25,7 +25,8 @@ from ..errors import UserError
 from ..lock import lock_output, releases_output_locks
 from ..outdir import OutputRecord, check_output, foreign_entries, move_into, record_tree
 from .capture import CaptureOptions
-from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, render_scene
+from .layouts import FOV_RANGE
+from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, fov_json, render_scene
 
 # Bump when a change makes the same seed and options give other pixels.
 GENERATOR_VERSION = "synth-5"
@@ -52,6 +53,7 @@ class SynthOptions:
         seed: dataset seed (>= 0); scene i uses the streams of (seed, i).
         aspects: aspect ratios (long / short) drawn per scene; (1.0,) gives square images.
         capture: sensor noise, exposure/white-balance jitter, JPEG compression (all off by default).
+        fov: (lowest, highest) field of view of the long side, degrees, drawn uniformly per scene.
     """
 
     scenes: int = 10
@@ -62,6 +64,7 @@ class SynthOptions:
     seed: int = 0
     aspects: tuple[float, ...] = (1.0, 4 / 3, 3 / 2, 16 / 9)
     capture: CaptureOptions = field(default_factory=CaptureOptions)
+    fov: tuple[float, float] = FOV_RANGE
 
     def __post_init__(self) -> None:
         if self.scenes < 1 or self.views < 1:
@@ -76,15 +79,19 @@ class SynthOptions:
             raise UserError(f"--seed must be >= 0, got {self.seed}")
         if not self.aspects or min(self.aspects) < 1.0:
             raise UserError(f"aspect ratios are long/short side and must be >= 1, got {self.aspects}")
+        low, high = self.fov
+        if not 1.0 <= low <= high <= 170.0:
+            raise UserError(f"--fov takes LOW:HIGH degrees with 1 <= LOW <= HIGH <= 170, got {low:g}:{high:g}")
 
     def to_json(self) -> dict:
-        return {**asdict(self), "aspects": list(self.aspects)}
+        return fov_json({**asdict(self), "aspects": list(self.aspects)}, self.fov)
 
     def spec(self, index: int) -> SceneSpec:
         """The spec of scene ``index``."""
         layout = draw_layout(self.seed, index) if self.layout == "mixed" else self.layout
         return SceneSpec(index=index, seed=self.seed, layout=layout, views=self.views, test_views=self.test_views,
-                         resolution=self.resolution, aspects=tuple(self.aspects), capture=self.capture)
+                         resolution=self.resolution, aspects=tuple(self.aspects), capture=self.capture,
+                         fov=tuple(self.fov))
 
 
 @dataclass(frozen=True)

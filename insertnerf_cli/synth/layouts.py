@@ -38,12 +38,15 @@ class Frame:
         return float(np.arctan(0.5 * min(self.height, self.width) / self.focal))
 
 
-def random_frame(rng: np.random.Generator, long_side: int, aspects: tuple[float, ...]) -> Frame:
-    """Draw an aspect ratio (landscape 70%, portrait 30%) and a focal length for a ``long_side`` image."""
+def random_frame(rng: np.random.Generator, long_side: int, aspects: tuple[float, ...],
+                 fov_range: tuple[float, float] = FOV_RANGE) -> Frame:
+    """Draw an aspect ratio (landscape 70%, portrait 30%) and a focal length for a ``long_side`` image, its long
+    side's field of view uniform in ``fov_range`` (degrees). The draws do not depend on the range, so one seed
+    gives the same scene at another range."""
     aspect = float(aspects[rng.integers(len(aspects))])
     short = max(1, int(round(long_side / aspect)))
     height, width = (short, long_side) if rng.random() < 0.7 else (long_side, short)
-    fov = np.radians(rng.uniform(*FOV_RANGE))
+    fov = np.radians(rng.uniform(*fov_range))
     return Frame(height, width, float(0.5 * long_side / np.tan(fov / 2)))
 
 

@@ -19,7 +19,7 @@ from ..cameras import Cameras
 from ..scenes.writers import write_blender_transforms
 from .capture import CaptureOptions, develop, draw_settings
 from .compose import COMPOSERS
-from .layouts import RIGS, Frame, held_out_indices, random_frame
+from .layouts import FOV_RANGE, RIGS, Frame, held_out_indices, random_frame
 from .raycast import build_scene_mesh
 from .render import auto_exposure, render_view
 from .world import World, exposed
@@ -45,6 +45,8 @@ class SceneSpec:
         resolution: long side of the images in pixels.
         aspects: image aspect ratios (long / short) to draw from.
         capture: capture effects switched on.
+        fov: range of the long side's field of view, degrees (the default is left out of the JSON, so specs
+            written before it existed read back the same).
     """
 
     index: int
@@ -55,18 +57,28 @@ class SceneSpec:
     resolution: int
     aspects: tuple[float, ...]
     capture: CaptureOptions
+    fov: tuple[float, float] = FOV_RANGE
 
     @property
     def name(self) -> str:
         return f"scene_{self.index:05d}"
 
     def to_json(self) -> dict:
-        return {**asdict(self), "aspects": list(self.aspects), "name": self.name}
+        return fov_json({**asdict(self), "aspects": list(self.aspects), "name": self.name}, self.fov)
 
     @staticmethod
     def from_json(data: dict) -> "SceneSpec":
         fields = {k: v for k, v in data.items() if k != "name"}
-        return SceneSpec(**{**fields, "aspects": tuple(fields["aspects"]), "capture": CaptureOptions(**fields["capture"])})
+        return SceneSpec(**{**fields, "aspects": tuple(fields["aspects"]), "fov": tuple(fields.get("fov", FOV_RANGE)),
+                            "capture": CaptureOptions(**fields["capture"])})
+
+
+def fov_json(fields: dict, fov: tuple[float, float]) -> dict:
+    """``fields`` with the field-of-view range as a list, or without it where it is the default: a dataset made
+    before the range could be chosen keeps its manifest, so a run of today's synth resumes it."""
+    if tuple(fov) == FOV_RANGE:
+        return {k: v for k, v in fields.items() if k != "fov"}
+    return {**fields, "fov": list(fov)}
 
 
 def stream(seed: int, index: int, *key: int) -> np.random.Generator:
@@ -98,7 +110,7 @@ def scene_world(spec: SceneSpec) -> World:
 def scene_cameras(spec: SceneSpec, world: World) -> tuple[Cameras, Frame]:
     """All ``spec.views`` cameras of a scene, in view order (held-out views included), and their frame."""
     rig_rng = stream(spec.seed, spec.index, _RIG)
-    frame = random_frame(rig_rng, spec.resolution, spec.aspects)
+    frame = random_frame(rig_rng, spec.resolution, spec.aspects, spec.fov)
     return RIGS[spec.layout](rig_rng, world.stage, frame, spec.views), frame
 
 
