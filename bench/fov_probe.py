@@ -10,6 +10,7 @@ per field-of-view range and scores them with `insertnerf eval`'s protocol.
 
     OMP_NUM_THREADS=1 python3 bench/fov_probe.py --work /tmp/fov --fovs 35:75,24:30 --scenes 4 --views 3,10
     OMP_NUM_THREADS=1 python3 bench/fov_probe.py --work /tmp/fov --fovs 24:30 --model full   # scenes kept in WORK
+    OMP_NUM_THREADS=1 python3 bench/fov_probe.py --work /tmp/fov --fovs 24:30 --object-radius 8.7
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import insertnerf_cli.evaluate as evaluate  # noqa: E402
+import insertnerf_cli.scenes.normalize as normalize  # noqa: E402
 from insertnerf_cli.group import cli  # noqa: E402
 from insertnerf_cli.checkpoint import bundled_checkpoint  # noqa: E402
 
@@ -45,7 +47,11 @@ def main() -> None:
     parser.add_argument("--views", default="3,10")
     parser.add_argument("--model", default="fast", help="bundled generator (fast, full)")
     parser.add_argument("--checkpoint", type=Path, default=None, help="weights file in place of --model")
+    parser.add_argument("--object-radius", type=float, default=normalize.OBJECT_RADIUS,
+                        help="mean camera distance an object scene is normalised to (eval's 4): 8.7 gives 24-30 "
+                             "degree scenes the subject size that 35-75 degree ones have")
     args = parser.parse_args()
+    normalize.OBJECT_RADIUS = args.object_radius  # read at load time (normalize_scene)
     counts = tuple(int(n) for n in args.views.split(","))
     checkpoint = args.checkpoint or bundled_checkpoint(args.model)
     for spec in args.fovs.split(","):
@@ -59,7 +65,8 @@ def main() -> None:
                 scores.append(report.psnr)
             print(f"  {scene.name}: " + " / ".join(f"{r.psnr:.2f}" for r in run.reports), flush=True)
         means = " / ".join(f"{sum(s) / len(s):.2f}" for s in per_count)
-        print(f"fov {low:g}-{high:g} deg | {checkpoint.name} | {len(scenes)} scenes | views {args.views} | {means}",
+        print(f"fov {low:g}-{high:g} deg | {checkpoint.name} | object radius {args.object_radius:g} | "
+              f"{len(scenes)} scenes | views {args.views} | {means}",
               flush=True)
 
 
