@@ -3,7 +3,10 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -230,6 +233,19 @@ def test_synth_workers_leave_ctrl_c_to_the_parent():
     context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
     with context.Pool(1, initializer=_init_worker) as pool:
         assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
+
+
+def test_a_run_with_workers_ends_without_a_stack_trace_from_them(tmp_path):
+    # The pool ends its workers with SIGTERM; forked from a parent that imported pycolmap (every command is
+    # imported), each printed glog's "*** SIGTERM received ... stack trace" until the worker reset the signal.
+    command = "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli import main; main()"
+    done = subprocess.run([sys.executable, "-c", command, "synth", str(tmp_path / "s"), "--scenes", "3", "--views",
+                           "2", "--test-views", "1", "--resolution", "16", "--workers", "2"],
+                          capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert done.returncode == 0, done.stderr
+    assert "Rendered 3 scenes" in done.stdout
+    lines = [line.split("\r")[-1] for line in done.stderr.splitlines()]
+    assert not [line for line in lines if line.strip() and not line.startswith("synth:")], done.stderr
 
 
 def test_leftover_temporary_scene_folders_are_removed_and_nothing_else(tmp_path):

@@ -212,11 +212,15 @@ def _init_worker() -> None:
     """One thread per worker process: the workers are the parallelism, and oversubscribed torch threads
     slowed ray generation 50-fold on a busy 2-core machine. Ctrl-C is the parent's to handle: a terminal sends
     it to every worker too, and a worker that raised KeyboardInterrupt before the parent's pool terminated it
-    printed a traceback (bench/hostile.py, synth_ctrl_c_during_work, under load)."""
+    printed a traceback (bench/hostile.py, synth_ctrl_c_during_work, under load). The pool ends its workers with
+    SIGTERM, after every run and on Ctrl-C: a forked worker inherits the failure handler that pycolmap's logging
+    installs when the parent imports it (with the other commands), and that handler printed a C++ stack trace
+    for each worker, so SIGTERM gets its default action back."""
     import cv2
     import torch
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
 
