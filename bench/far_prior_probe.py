@@ -90,7 +90,8 @@ def main() -> None:
             scores = " / ".join(f"{r.psnr:.2f} ({r.ssim:.3f})" for r in run.reports)
             moved = sum(r > 1.0 for r in raised)
             rule = (f"margin {m:g}{' only past' if args.only_past else ''}"
-                    f"{'' if args.trigger is None else f' trigger q{args.trigger:g}'}{' + infinity' if args.infinity else ''}"
+                    f"{'' if args.trigger is None else f' trigger q{args.trigger:g}'}"
+                    f"{' + infinity' if args.infinity else ''}"
                     f"{'' if args.far_views is None else f' far from {args.far_views} views'}")
             print(f"{rule} | {capture} | views {args.views} | "
                   f"{scores} | far raised in {moved}/{len(raised)} renders", flush=True)

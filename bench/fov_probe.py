@@ -2,8 +2,9 @@
 
 synth draws each scene's field of view (long side) from 35-75 degrees by default (`--fov`); mold_gold_cape's
 camera sees 26.7 degrees (f = 7,689 px on a 3,648 px square), outside everything the bundled generators trained
-on. A camera that frames its subject alike through a longer lens stands farther back (1.3-2.6 times here): its
-views are nearer to affine and the subject spans a narrower band of depth (mold_gold_cape: far / near 1.2-1.6). This
+on. A camera that frames its subject alike through a longer lens stands farther back (at 26.7 degrees, 1.3 times
+as far as at 35 and 2.6 times as far as at 75): its views are nearer to affine and the subject spans a narrower
+band of depth (mold_gold_cape: far / near 1.2-1.6). This
 makes the same procedural scenes (`insertnerf synth --fov LOW:HIGH`, same seed: the same geometry, materials and
 view directions; the rig stands back so that the subject fills the frame alike, up to an enclosure's walls) once
 per field-of-view range and scores them with `insertnerf eval`'s protocol.
