@@ -51,6 +51,7 @@ def main() -> None:
     parser.add_argument("--object-radius", type=float, default=normalize.OBJECT_RADIUS,
                         help="mean camera distance an object scene is normalised to (eval's 4): 8.7 gives 24-30 "
                              "degree scenes the subject size that 35-75 degree ones have")
+    parser.add_argument("--exact", action="store_true", help="every ray's own coarse and fine pass (eval --exact)")
     args = parser.parse_args()
     normalize.OBJECT_RADIUS = args.object_radius  # read at load time (normalize_scene)
     counts = tuple(int(n) for n in args.views.split(","))
@@ -61,12 +62,13 @@ def main() -> None:
         per_count = [[] for _ in counts]
         for scene in scenes:
             run = evaluate.run_eval(scene, evaluate.EvalConfig(views=counts if len(counts) > 1 else counts[0],
-                                                               checkpoint=checkpoint))
+                                                               checkpoint=checkpoint, exact=args.exact))
             for scores, report in zip(per_count, run.reports):
                 scores.append(report.psnr)
             print(f"  {scene.name}: " + " / ".join(f"{r.psnr:.2f}" for r in run.reports), flush=True)
         means = " / ".join(f"{sum(s) / len(s):.2f}" for s in per_count)
-        print(f"fov {low:g}-{high:g} deg | {checkpoint.name} | object radius {args.object_radius:g} | "
+        print(f"fov {low:g}-{high:g} deg | {checkpoint.name}{' | exact' if args.exact else ''} | "
+              f"object radius {args.object_radius:g} | "
               f"{len(scenes)} scenes | views {args.views} | {means}",
               flush=True)
 
