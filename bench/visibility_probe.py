@@ -25,7 +25,6 @@ import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.depth_prior import covering_far  # noqa: E402
 from insertnerf_cli.model.aggregate import angular_prior, reweigh  # noqa: E402
 from insertnerf_cli.model.consistency import colour_variance  # noqa: E402
 from insertnerf_cli.model.insertnerf import InsertNeRF  # noqa: E402
@@ -39,6 +38,7 @@ from view_set_probe import variants_main  # noqa: E402
 LOW, OPAQUE, FAR = 128, 0.5, 1e6  # depth-map long side (px), opacity of a surface, depth of an empty pixel
 SETTINGS = {"mode": "off", "tol": 0.15, "reach": None}
 STATE: dict = {"maps": None, "cache": {}}
+LIBRARY_RENDER = ViewRenderer.render  # before main() patches it
 
 
 def reference_depth(renderer: ViewRenderer, index: int, exclude: list[int]) -> torch.Tensor:
@@ -63,10 +63,8 @@ def render(self: ViewRenderer, camera, near: float, far: float, exclude: list[in
     maps = torch.stack([reference_depth(self, r, exclude) for r in sorted(refs)]) if SETTINGS["mode"] != "off" \
         else None
     STATE["maps"] = maps
-    prior = self._prior(camera, refs)  # as ViewRenderer.render: the SfM prior and the far bound it may raise
-    try:
-        return render_image(self.model, self._encoded(refs), camera, near, covering_far(far, prior), self.chunk,
-                            self.shortcuts, prior), refs
+    try:  # the library's own render (its SfM prior, the far bound that raises), which picks the same references
+        return LIBRARY_RENDER(self, camera, near, far, exclude, views)
     finally:
         STATE["maps"] = None
 
