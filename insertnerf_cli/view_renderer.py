@@ -75,6 +75,7 @@ class ViewRenderer:
         self.method = view_rule(scene.layout)
         self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
         self.sfm_depth = sfm_depth and scene.points is not None
+        self.prior_blend = True  # prior_blend.blend_at_prior on every frame with an SfM prior
 
     def references(self, target_c2w: torch.Tensor, exclude: list[int], views: int | None = None) -> list[int]:
         from .views import nearest_views
@@ -110,14 +111,21 @@ class ViewRenderer:
     def render(self, camera: Cameras, near: float, far: float, exclude: list[int], views: int | None = None):
         """(ImageOutput of ``camera`` (1), the reference indices used) from its ``views`` (default: the
         renderer's count) nearest references; never uses an index in ``exclude``. The samples lie within
-        ``near`` and far_bound(): ``far``, raised where the frame's SfM points lie past it."""
+        ``near`` and far_bound(): ``far``, raised where the frame's SfM points lie past it. Pixels whose
+        references agree better at the SfM depth than at the rendered one take their blend there
+        (prior_blend)."""
         from .depth_prior import covering_far
         from .render import render_image
 
         refs = self.references(camera.c2w[0], exclude, views)
         prior = self._prior(camera, refs)
-        return render_image(self.model, self._encoded(refs), camera, near, covering_far(far, prior), self.chunk,
-                            self.shortcuts, prior), refs
+        encoded, far = self._encoded(refs), covering_far(far, prior)
+        frame = render_image(self.model, encoded, camera, near, far, self.chunk, self.shortcuts, prior)
+        if prior is not None and self.prior_blend:
+            from .prior_blend import blend_at_prior
+
+            frame = blend_at_prior(frame, encoded, camera, prior, far)
+        return frame, refs
 
     def far_bound(self, camera: Cameras, far: float, exclude: list[int], views: int | None = None) -> float:
         """The far bound render() draws ``camera``'s samples within: ``far``, raised where the frame's SfM points lie

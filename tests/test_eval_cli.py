@@ -103,7 +103,10 @@ def test_max_views_scores_a_subset_of_the_full_protocol(checkpoint, tmp_path):
     for view in part:
         assert not set(view["references"]) & {8, 9, 10}
         assert view["references"] == full[view["index"]]["references"]
-        assert view["psnr"] == pytest.approx(full[view["index"]]["psnr"], abs=1e-9)
+        # Not to the last bit: the references are encoded in batches of other sizes here, and on some CPUs the
+        # U-Net's convolutions round differently by batch size (7e-8 dB on this one). Another reference would move
+        # the score by far more.
+        assert view["psnr"] == pytest.approx(full[view["index"]]["psnr"], abs=1e-5)
 
 
 def test_a_list_of_view_counts_scores_each_on_the_same_held_out_views(checkpoint, tmp_path, monkeypatch):

@@ -80,7 +80,8 @@ def projection_matrices(cameras: Cameras) -> Tensor:
     return cameras.K @ cameras.w2c[:, :3, :]
 
 
-def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor, finer: bool = True) -> Projected:
+def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor, finer: bool = True,
+                    features: bool = True) -> Projected:
     """Sample every reference view at every point.
 
     Args:
@@ -89,6 +90,8 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor, f
         directions: [R, 3] query ray directions (any length).
         finer: also look the colours up in ``encoded.colours`` where it holds them (Projected.finer); False
             where no colour is blended (render's coarse pass).
+        features: also the U-Net features (Projected.features); False gives () where only colours are read
+            (prior_blend).
     """
     rays, samples = points.shape[:2]
     flat = points.reshape(rays * samples, 3).T  # [3, P]
@@ -97,10 +100,10 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor, f
              & (uv[:, 1:] >= 0) & (uv[:, 1:] <= encoded.height))  # [V, 1, P]
     pad_h, pad_w = encoded.padded_size
     grid = _grid(uv, valid, pad_w, pad_h)  # [V, 1, P, 2]
-    features = tuple(_sample(f, grid) for f in encoded.features)
+    looked_up = tuple(_sample(f, grid) for f in encoded.features) if features else ()
     centers = encoded.centers.to(points)
     fine = _finer_colours(encoded, uv, valid) if finer and encoded.colours is not None else None
-    return Projected(features, _sample(encoded.images, grid), valid.to(points.dtype),
+    return Projected(looked_up, _sample(encoded.images, grid), valid.to(points.dtype),
                      _ray_diff(centers, flat, directions, samples), fine)
 
 

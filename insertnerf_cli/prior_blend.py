@@ -1,0 +1,101 @@
+"""Pixels whose references agree better at the SfM depth than at the rendered one take their blend there.
+
+Issue 27, round 28 (docs/model-card.md): on mold_gold_cape the generator's depth sits a median 12 % off the depth of
+the scene's SfM points on a third of the pixels, and sending its fine samples there does not move it (its density,
+learned on synthetic scenes, prefers the gold's reflections). On those pixels a plain unstructured-lumigraph blend
+of the references at the SfM depth scores 4 dB above the generator's colour. Where the SfM depth is the wrong
+one (room's filled splats), the references disagree there and the generator's frame is kept. The test is the
+references' colour variance over a small patch, as plane-sweep stereo matches: one pixel alone matches noise.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from .cameras import Cameras, check_shape
+from .model.aggregate import angular_prior, weighted_moments
+from .model.projection import Projected, project_samples
+from .rays import Rays, rays_for_image
+
+if TYPE_CHECKING:
+    from .model import EncodedViews
+    from .render import ImageOutput
+
+# The blend: the lumigraph weights of the 8 views nearest in angle (K = 6 and 11 scored 0.1-0.2 dB less on
+# mold_gold_cape's covered pixels: bench/ibr_baseline.py --k). The agreement: the variance over the 4 nearest (3
+# with weight), as the generator's photo-consistency cue takes it (ModelConfig.consistency_views).
+BLEND_VIEWS = 8
+AGREE_VIEWS = 4
+# The patch the variance is averaged over, as a fraction of the frame's long side (7 px at eval's 256 px).
+WINDOW_FRACTION = 7 / 256
+# The SfM depth is taken where the references' variance there is this many times lower than at the rendered depth.
+MARGIN = 1.5
+# The variance of a point fewer than two references see: above any of colours in [0, 1] (3 channels x 1/4), so
+# such a point never wins, and a patch holding a few still can.
+UNSEEN_COST = 1.0
+# Pixels reprojected per pass: [V, 3 + 4 + 1, P] floats for 10 views stay near 20 MB.
+PIXELS_PER_PASS = 65536
+
+
+def reference_colours(encoded: "EncodedViews", rays: Rays, depth: Tensor) -> Projected:
+    """What each reference sees of R rays' points at camera-z ``depth`` [R] (the rays' directions have z = 1;
+    NaN: nothing there, masked out): colours [V, 3, R] at the frame's size, finer ones where encoded holds them,
+    mask [V, 1, R], ray_diff [V, 4, R]."""
+    known = torch.isfinite(depth)
+    points = rays.origins + rays.directions * torch.where(known, depth, torch.ones_like(depth))[:, None]  # [R, 3]
+    seen = project_samples(encoded, points[:, None], rays.directions, features=False)
+    return Projected((), seen.colours, seen.mask * known.to(seen.mask)[None, None], seen.ray_diff, seen.finer)
+
+
+def variance(seen: Projected) -> Tensor:
+    """[R] the references' summed RGB variance at each point under the lumigraph weights of the AGREE_VIEWS views
+    nearest in angle; UNSEEN_COST where fewer than two views see it."""
+    _, var = weighted_moments(seen.colours, angular_prior(seen.ray_diff, seen.mask, AGREE_VIEWS))  # [1, 3, R]
+    lonely = seen.mask.sum(dim=(0, 1)) < 2
+    return torch.where(lonely, torch.full_like(var[0, 0], UNSEEN_COST), var.sum(dim=1)[0])
+
+
+def blend(seen: Projected) -> Tensor:
+    """[R, 3] the lumigraph blend of the BLEND_VIEWS references nearest in angle (finer colours where held)."""
+    weights = angular_prior(seen.ray_diff, seen.mask, BLEND_VIEWS)  # [V, 1, R]
+    return (seen.blend_colours * weights).sum(dim=0).T
+
+
+def patch_mean(cost: Tensor, size: tuple[int, int]) -> Tensor:
+    """[R] per-pixel ``cost`` [R] averaged over a square patch of WINDOW_FRACTION of the long side (odd, centred;
+    the pixels inside the frame only)."""
+    window = max(1, round(WINDOW_FRACTION * max(size))) | 1
+    return F.avg_pool2d(cost.reshape(1, 1, *size), window, stride=1, padding=window // 2,
+                        count_include_pad=False).reshape(-1)
+
+
+def blend_at_prior(frame: "ImageOutput", encoded: "EncodedViews", camera: Cameras, prior: Tensor,
+                   far: float) -> "ImageOutput":
+    """``frame`` with each pixel whose references agree MARGIN times better at the ``prior`` depth [H, W] (NaN:
+    none) than at the frame's own depth given their blend at the prior: colour and depth; opacity kept. A prior
+    past ``far``, the bound the frame was rendered within, is left out: depth files sized for it hold every pixel."""
+    from .render import ImageOutput
+
+    height, width = camera.height, camera.width
+    check_shape("prior", prior, (height, width))
+    param = encoded.images
+    camera = camera.to(device=param.device, dtype=param.dtype)
+    prior_flat, rendered = prior.to(param).reshape(-1), frame.depth.to(param).reshape(-1)  # [R] each
+    ones = param.new_ones(1)
+    rays = rays_for_image(camera, ones, ones)
+    at_prior, at_render, colours = [], [], []
+    for start in range(0, len(rays), PIXELS_PER_PASS):
+        part = rays[start:start + PIXELS_PER_PASS]
+        seen = reference_colours(encoded, part, prior_flat[start:start + PIXELS_PER_PASS])
+        at_prior.append(variance(seen))
+        colours.append(blend(seen))
+        at_render.append(variance(reference_colours(encoded, part, rendered[start:start + PIXELS_PER_PASS])))
+    size = (height, width)
+    agree_prior, agree_render = (patch_mean(torch.cat(c), size) for c in (at_prior, at_render))
+    take = (prior_flat <= far) & (agree_prior * MARGIN < agree_render)  # [R]; NaN compares False
+    rgb = torch.where(take[:, None], torch.cat(colours).to(frame.rgb), frame.rgb.reshape(-1, 3)).clamp(0.0, 1.0)
+    depth = torch.where(take, prior_flat.to(frame.depth), frame.depth.reshape(-1))
+    return ImageOutput(rgb=rgb.reshape(height, width, 3), depth=depth.reshape(height, width), opacity=frame.opacity)

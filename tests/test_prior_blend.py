@@ -1,0 +1,83 @@
+"""Issue 27, round 28: pixels whose references agree better at the SfM depth take their blend there (prior_blend)."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from insertnerf_cli.model import InsertNeRF, SourceViews
+from insertnerf_cli.prior_blend import blend_at_prior
+from insertnerf_cli.rays import rays_for_image
+from insertnerf_cli.render import ImageOutput
+from model_fixtures import FAR, SPHERE, TINY, orbit_cameras, sphere_images
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+SIZE = 32
+
+
+def sphere_depth(camera) -> torch.Tensor:
+    """[H, W] camera-z depth of the sphere where a pixel's ray hits it, NaN elsewhere."""
+    one = torch.ones(1)
+    rays = rays_for_image(camera, one, one)
+    d, o = rays.directions.double(), rays.origins.double()  # z = 1 directions: the ray parameter is camera z
+    a, b = (d * d).sum(-1), (d * o).sum(-1)
+    disc = b ** 2 - a * ((o * o).sum(-1) - SPHERE ** 2)
+    t = (-b - disc.clamp(min=0.0).sqrt()) / a
+    return torch.where(disc > 0, t, torch.nan).float().reshape(camera.height, camera.width)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """The encoded sphere views (the 4 of 16 around it nearest the target, as render picks them: none sees the
+    target's side of the sphere from behind), a target camera between two of them, its photo and true depth."""
+    torch.manual_seed(0)
+    ring = orbit_cameras(16, SIZE)
+    nearest = [15, 0, 1, 2]
+    with torch.no_grad():
+        encoded = InsertNeRF(TINY).eval().encode(SourceViews(sphere_images(ring)[nearest], ring.subset(nearest)))
+    camera = orbit_cameras(1, SIZE, phase=0.3)
+    return encoded, camera, sphere_images(camera)[0], sphere_depth(camera)
+
+
+def frame(rgb: torch.Tensor, depth: torch.Tensor) -> ImageOutput:
+    return ImageOutput(rgb=rgb.clone(), depth=depth.clone(), opacity=torch.ones_like(depth))
+
+
+def test_a_true_prior_replaces_a_wrong_depth_with_the_references_colour_there(scene):
+    encoded, camera, photo, depth = scene
+    grey = torch.full_like(photo, 0.5)
+    wrong = frame(grey, torch.nan_to_num(depth * 1.3, nan=4.0))
+    out = blend_at_prior(wrong, encoded, camera, depth, FAR)
+    on_sphere = torch.isfinite(depth)
+    taken = (out.depth == depth) & on_sphere
+    assert taken.sum() >= 0.7 * on_sphere.sum()  # not all: a smooth texture also agrees off the surface
+    # The blend of the references at the true depth is the sphere's own texture, up to bilinear lookups (and the
+    # silhouette's pixels, which some of them see half off the sphere).
+    error = (out.rgb[taken] - photo[taken]).abs()
+    assert error.median() < 0.02
+    assert error.mean() < 0.3 * (grey[taken] - photo[taken]).abs().mean()
+    assert torch.equal(out.rgb[~on_sphere], grey[~on_sphere])  # no prior: the frame's own pixels
+    assert torch.equal(out.opacity, wrong.opacity)
+
+
+def test_a_wrong_prior_leaves_a_right_frame_alone(scene):
+    encoded, camera, photo, depth = scene
+    right = frame(photo, torch.nan_to_num(depth, nan=4.0))
+    out = blend_at_prior(right, encoded, camera, depth * 1.3, FAR)
+    kept = (out.rgb == photo).all(dim=-1)
+    assert kept.float().mean() >= 0.95
+
+
+def test_no_prior_changes_nothing(scene):
+    encoded, camera, photo, depth = scene
+    given = frame(torch.full_like(photo, 0.5), torch.nan_to_num(depth * 1.3, nan=4.0))
+    out = blend_at_prior(given, encoded, camera, torch.full_like(depth, torch.nan), FAR)
+    assert torch.equal(out.rgb, given.rgb) and torch.equal(out.depth, given.depth)
+
+
+def test_a_prior_past_the_far_bound_is_left_out(scene):
+    encoded, camera, photo, depth = scene
+    wrong = frame(torch.full_like(photo, 0.5), torch.nan_to_num(depth * 1.3, nan=4.0))
+    nearest = float(depth[torch.isfinite(depth)].min())
+    out = blend_at_prior(wrong, encoded, camera, depth, far=nearest * 0.99)  # every surface lies past it
+    assert torch.equal(out.rgb, wrong.rgb) and torch.equal(out.depth, wrong.depth)
