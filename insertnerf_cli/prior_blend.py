@@ -36,7 +36,8 @@ MARGIN = 1.5
 # The variance of a point fewer than two references see: above any of colours in [0, 1] (3 channels x 1/4), so
 # such a point never wins, and a patch holding a few still can.
 UNSEEN_COST = 1.0
-# Pixels reprojected per pass: [V, 3 + 4 + 1, P] floats for 10 views stay near 20 MB.
+# Pixels reprojected per pass: [V, 3 + 3 + 4 + 1, P] floats (colours, finer colours, ray_diff, mask) for 10 views
+# stay near 30 MB.
 PIXELS_PER_PASS = 65536
 
 
@@ -86,16 +87,19 @@ def blend_at_prior(frame: "ImageOutput", encoded: "EncodedViews", camera: Camera
     prior_flat, rendered = prior.to(param).reshape(-1), frame.depth.to(param).reshape(-1)  # [R] each
     ones = param.new_ones(1)
     rays = rays_for_image(camera, ones, ones)
-    at_prior, at_render, colours = [], [], []
+    at_prior, at_render, colours, seen_twice = [], [], [], []
     for start in range(0, len(rays), PIXELS_PER_PASS):
         part = rays[start:start + PIXELS_PER_PASS]
         seen = reference_colours(encoded, part, prior_flat[start:start + PIXELS_PER_PASS])
         at_prior.append(variance(seen))
         colours.append(blend(seen))
+        seen_twice.append(seen.mask.sum(dim=(0, 1)) >= 2)
         at_render.append(variance(reference_colours(encoded, part, rendered[start:start + PIXELS_PER_PASS])))
     size = (height, width)
     agree_prior, agree_render = (patch_mean(torch.cat(c), size) for c in (at_prior, at_render))
-    take = (prior_flat <= far) & (agree_prior * MARGIN < agree_render)  # [R]; NaN compares False
+    # A pixel whose own prior point fewer than two references see has no blend to speak of (none: black), however
+    # well its patch agrees.
+    take = (prior_flat <= far) & torch.cat(seen_twice) & (agree_prior * MARGIN < agree_render)  # [R]; NaN: False
     rgb = torch.where(take[:, None], torch.cat(colours).to(frame.rgb), frame.rgb.reshape(-1, 3)).clamp(0.0, 1.0)
     depth = torch.where(take, prior_flat.to(frame.depth), frame.depth.reshape(-1))
     return ImageOutput(rgb=rgb.reshape(height, width, 3), depth=depth.reshape(height, width), opacity=frame.opacity)

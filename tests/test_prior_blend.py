@@ -81,3 +81,25 @@ def test_a_prior_past_the_far_bound_is_left_out(scene):
     nearest = float(depth[torch.isfinite(depth)].min())
     out = blend_at_prior(wrong, encoded, camera, depth, far=nearest * 0.99)  # every surface lies past it
     assert torch.equal(out.rgb, wrong.rgb) and torch.equal(out.depth, wrong.depth)
+
+
+def test_a_prior_point_fewer_than_two_references_see_is_never_taken():
+    # At 128 px the agreement is averaged over a 5-px patch: one pixel whose prior no reference sees (a point just
+    # in front of the target camera) sits in a patch that agrees, and must still keep the frame's colour.
+    size = 128
+    ring = orbit_cameras(16, size)
+    nearest = [15, 0, 1, 2]
+    torch.manual_seed(0)
+    with torch.no_grad():
+        encoded = InsertNeRF(TINY).eval().encode(SourceViews(sphere_images(ring)[nearest], ring.subset(nearest)))
+    camera = orbit_cameras(1, size, phase=0.3)
+    depth = sphere_depth(camera)
+    prior = depth.clone()
+    prior[size // 2, size // 2] = 0.05
+    # The frame's depth in front of the sphere, where the references disagree far more than the patch's one
+    # unseen pixel costs.
+    wrong = frame(torch.full((size, size, 3), 0.5), torch.nan_to_num(depth * 0.7, nan=4.0))
+    out = blend_at_prior(wrong, encoded, camera, prior, FAR)
+    assert (out.depth == depth).float().mean() > 0.1  # the patch around it is taken
+    assert torch.equal(out.rgb[size // 2, size // 2], wrong.rgb[size // 2, size // 2])
+    assert out.depth[size // 2, size // 2] == wrong.depth[size // 2, size // 2]
