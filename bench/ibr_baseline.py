@@ -167,8 +167,8 @@ def probe(capture: str, views: int, max_views: int | None, ks: list[int], root: 
     held = held_out_views(scene)
     size = scene.size_for(256)
     scene = with_points(scene, [i for i in range(len(scene)) if i not in held])
-    renderer = ViewRenderer(load_model(checkpoint_path(None), "cpu"), scene, size, views)
-    renderer.prior_blend = False  # "gen" is the generator's frame alone; "mix" is what prior_blend became
+    # "gen" is the generator's frame alone; "mix" is what prior_blend became.
+    renderer = ViewRenderer(load_model(checkpoint_path(None), "cpu"), scene, size, views, prior_blend=False)
     rows = []
     for index in evenly_spread(held, max_views):
         camera = scene.cameras.subset([index]).rescale(*size)

@@ -58,11 +58,13 @@ class ViewRenderer:
             the points that two views outside a frame's ``exclude`` and one of its nearest references observe).
         colour_scale: look the reference colours that the frame's colour blends up in the photos at up to this
             many times ``size`` (1: at ``size``, in the images the U-Net encodes).
+        prior_blend: where a frame has an SfM prior, give the pixels whose references agree better at its depth
+            their blend there (prior_blend.blend_at_prior); False: the generator's frame alone (bench probes).
     """
 
     def __init__(self, model: torch.nn.Module, scene, size: tuple[int, int], views: int, device: str = "cpu",
                  chunk: int | None = None, exact: bool = False, sfm_depth: bool = True,
-                 colour_scale: float = COLOUR_SCALE) -> None:
+                 colour_scale: float = COLOUR_SCALE, prior_blend: bool = True) -> None:
         self.model = model
         self.scene, self.size, self.k = scene, size, views
         self.colour_size = colour_size(size, (scene.cameras.height, scene.cameras.width), colour_scale)
@@ -75,7 +77,7 @@ class ViewRenderer:
         self.method = view_rule(scene.layout)
         self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
         self.sfm_depth = sfm_depth and scene.points is not None
-        self.prior_blend = True  # prior_blend.blend_at_prior on every frame with an SfM prior
+        self.prior_blend = prior_blend
 
     def references(self, target_c2w: torch.Tensor, exclude: list[int], views: int | None = None) -> list[int]:
         from .views import nearest_views
