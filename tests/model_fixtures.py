@@ -45,6 +45,15 @@ def sphere_images(cameras: Cameras, background: float = 1.0) -> torch.Tensor:
     return torch.from_numpy(rgb.reshape(len(cameras), cameras.height, cameras.width, 3)).float()
 
 
+def sphere_hit(origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+    """[R] ray parameter t of each ray's first hit on the sphere (``origins`` + t ``directions``, [R, 3] each; in
+    float64), NaN where a ray misses it."""
+    d, o = directions.double(), origins.double()
+    a, b = (d * d).sum(-1), (d * o).sum(-1)
+    disc = b ** 2 - a * ((o * o).sum(-1) - SPHERE ** 2)
+    return torch.where(disc > 0, (-b - disc.clamp(min=0.0).sqrt()) / a, torch.nan)
+
+
 def sphere_views(n: int, size: int, phase: float = 0.0) -> SourceViews:
     cams = orbit_cameras(n, size, phase)
     return SourceViews(sphere_images(cams), cams)

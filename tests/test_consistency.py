@@ -13,7 +13,7 @@ from insertnerf_cli.model.consistency import colour_variance, sharpen
 from insertnerf_cli.model.projection import project_samples
 from insertnerf_cli.rays import rays_from_pixels
 from insertnerf_cli.sampling import stratified_samples
-from model_fixtures import FAR, NEAR, RADIUS, SPHERE, TINY, orbit_cameras, sphere_views
+from model_fixtures import FAR, NEAR, RADIUS, TINY, orbit_cameras, sphere_hit, sphere_views
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -24,11 +24,9 @@ CENTRE = torch.tensor([[[SIZE / 2 + dx, SIZE / 2 + dy] for dx in (-2.0, 0.0, 2.0
 
 def hit_depth(rays) -> torch.Tensor:
     """[R] exact ray parameter of each ray's first hit on the sphere (every ray here hits it)."""
-    d, o = rays.directions.double(), rays.origins.double()
-    a, b = (d * d).sum(-1), (d * o).sum(-1)
-    disc = b ** 2 - a * ((o * o).sum(-1) - SPHERE ** 2)
-    assert torch.all(disc > 0)
-    return ((-b - disc.sqrt()) / a).float()
+    t = sphere_hit(rays.origins, rays.directions)
+    assert torch.all(torch.isfinite(t))
+    return t.float()
 
 
 def centre_rays():

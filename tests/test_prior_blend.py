@@ -8,7 +8,7 @@ from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.prior_blend import blend_at_prior
 from insertnerf_cli.rays import rays_for_image
 from insertnerf_cli.render import ImageOutput
-from model_fixtures import FAR, SPHERE, TINY, orbit_cameras, sphere_images
+from model_fixtures import FAR, TINY, orbit_cameras, sphere_hit, sphere_images
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -18,25 +18,25 @@ SIZE = 32
 def sphere_depth(camera) -> torch.Tensor:
     """[H, W] camera-z depth of the sphere where a pixel's ray hits it, NaN elsewhere."""
     one = torch.ones(1)
-    rays = rays_for_image(camera, one, one)
-    d, o = rays.directions.double(), rays.origins.double()  # z = 1 directions: the ray parameter is camera z
-    a, b = (d * d).sum(-1), (d * o).sum(-1)
-    disc = b ** 2 - a * ((o * o).sum(-1) - SPHERE ** 2)
-    t = (-b - disc.clamp(min=0.0).sqrt()) / a
-    return torch.where(disc > 0, t, torch.nan).float().reshape(camera.height, camera.width)
+    rays = rays_for_image(camera, one, one)  # z = 1 directions: the ray parameter is camera z
+    return sphere_hit(rays.origins, rays.directions).float().reshape(camera.height, camera.width)
+
+
+def encoded_ring(size: int):
+    """The encoded sphere views of ``size`` px that render would pick for the target camera (orbit phase 0.3):
+    the 4 of 16 around the sphere nearest it, so none sees the target's side of the sphere from behind."""
+    torch.manual_seed(0)
+    ring = orbit_cameras(16, size)
+    nearest = [15, 0, 1, 2]
+    with torch.no_grad():
+        return InsertNeRF(TINY).eval().encode(SourceViews(sphere_images(ring)[nearest], ring.subset(nearest)))
 
 
 @pytest.fixture(scope="module")
 def scene():
-    """The encoded sphere views (the 4 of 16 around it nearest the target, as render picks them: none sees the
-    target's side of the sphere from behind), a target camera between two of them, its photo and true depth."""
-    torch.manual_seed(0)
-    ring = orbit_cameras(16, SIZE)
-    nearest = [15, 0, 1, 2]
-    with torch.no_grad():
-        encoded = InsertNeRF(TINY).eval().encode(SourceViews(sphere_images(ring)[nearest], ring.subset(nearest)))
+    """encoded_ring(SIZE), the target camera between two of its views, its photo and true depth."""
     camera = orbit_cameras(1, SIZE, phase=0.3)
-    return encoded, camera, sphere_images(camera)[0], sphere_depth(camera)
+    return encoded_ring(SIZE), camera, sphere_images(camera)[0], sphere_depth(camera)
 
 
 def frame(rgb: torch.Tensor, depth: torch.Tensor) -> ImageOutput:
@@ -87,11 +87,7 @@ def test_a_prior_point_fewer_than_two_references_see_is_never_taken():
     # At 128 px the agreement is averaged over a 5-px patch: one pixel whose prior no reference sees (a point just
     # in front of the target camera) sits in a patch that agrees, and must still keep the frame's colour.
     size = 128
-    ring = orbit_cameras(16, size)
-    nearest = [15, 0, 1, 2]
-    torch.manual_seed(0)
-    with torch.no_grad():
-        encoded = InsertNeRF(TINY).eval().encode(SourceViews(sphere_images(ring)[nearest], ring.subset(nearest)))
+    encoded = encoded_ring(size)
     camera = orbit_cameras(1, size, phase=0.3)
     depth = sphere_depth(camera)
     prior = depth.clone()
