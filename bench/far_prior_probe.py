@@ -22,6 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import insertnerf_cli.evaluate as evaluate  # noqa: E402
 from bounds_probe import with_infinity  # noqa: E402
+from insertnerf_cli.prior_blend import blend_at_prior  # noqa: E402
 from insertnerf_cli.render import render_image  # noqa: E402
 from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 
@@ -74,8 +75,11 @@ def main() -> None:
         raised.append(wide / far)
         if args.near:
             near = covering(near, prior, margin[0], args.quantile, far=False)
-        return render_image(self.model, self._encoded(refs), camera, near, wide, self.chunk, self.shortcuts,
-                            prior), refs
+        encoded = self._encoded(refs)
+        frame = render_image(self.model, encoded, camera, near, wide, self.chunk, self.shortcuts, prior)
+        if prior is not None and self.prior_blend:  # as the library's render: the blend within the bound drawn
+            frame = blend_at_prior(frame, encoded, camera, prior, wide)
+        return frame, refs
 
     ViewRenderer.render = render
     if args.infinity:

@@ -6,8 +6,8 @@ points in whose tracks it stands. Here each reference's depth map is made from t
 that two views outside the held-out one observe and the reference does), splatted and filled by
 depth_prior.prior_depth at LOW px; pixels no point reaches count as infinitely far (visible). A sample then counts
 as seen by a reference only where its depth there is within (1 + tol) of that map, in the colour prior and the
-cue (colour:TOL) or also in the aggregators' mask (all:TOL), as in visibility_probe. Render's SfM prior for the
-fine samples is kept.
+cue (colour:TOL) or also in the aggregators' mask (all:TOL), as in visibility_probe. The frame itself is the
+library's render: its SfM prior for the fine samples, its raised far bound and its blend at the SfM depth.
 
     OMP_NUM_THREADS=1 python3 bench/sfm_visibility_probe.py --variants off,colour:0.15,all:0.3 --captures room \
         --views 3,10
@@ -23,7 +23,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import visibility_probe as vp  # noqa: E402
 from insertnerf_cli.depth_prior import prior_depth  # noqa: E402
-from insertnerf_cli.render import render_image  # noqa: E402
 from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 
 
@@ -45,13 +44,11 @@ def reference_points_depth(renderer: ViewRenderer, index: int, exclude: list[int
 def render(self: ViewRenderer, camera, near: float, far: float, exclude: list[int], views: int | None = None):
     """ViewRenderer.render with the references' point maps set for observe (in the encoding's sorted order)."""
     refs = self.references(camera.c2w[0], exclude, views)
-    prior = self._prior(camera, refs)
     usable = vp.SETTINGS["mode"] != "off" and self.scene.points is not None
     vp.STATE["maps"] = torch.stack([reference_points_depth(self, r, exclude) for r in sorted(refs)]) if usable \
         else None
-    try:
-        return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts,
-                            prior), refs
+    try:  # the library's own render (its SfM prior, raised far bound and blend), which picks the same references
+        return vp.LIBRARY_RENDER(self, camera, near, far, exclude, views)
     finally:
         vp.STATE["maps"] = None
 

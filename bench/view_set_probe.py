@@ -30,13 +30,13 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
-from insertnerf_cli.render import render_image  # noqa: E402
 from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
 from insertnerf_cli.views import VIEW_METHODS, view_distances  # noqa: E402
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 GRID, DEPTHS, POOL = 8, 4, 3  # frustum grid per side, depths along each ray, candidates per chosen view for cover
 RULE = {"name": "vector", "weight": 0.0}
+LIBRARY_RENDER = ViewRenderer.render  # before main() patches it
 
 
 def unseen_share(renderer: ViewRenderer, camera, near: float, far: float, candidates: list[int]) -> torch.Tensor:
@@ -78,10 +78,14 @@ def choose(renderer: ViewRenderer, camera, near: float, far: float, exclude: lis
 
 
 def render(self: ViewRenderer, camera, near: float, far: float, exclude: list[int], views: int | None = None):
-    """ViewRenderer.render with the references chosen by RULE (and the SfM prior of those references, as eval)."""
+    """ViewRenderer.render with the references chosen by RULE: the library's render (its SfM prior of those
+    references, raised far bound and blend at the SfM depth, as eval) with the renderer's choice set to them."""
     refs = choose(self, camera, near, far, exclude, views or self.k)
-    return render_image(self.model, self._encoded(refs), camera, near, far, self.chunk, self.shortcuts,
-                        self._prior(camera, refs)), refs
+    self.references = lambda *args, **kwargs: refs  # shadows the method for this one call
+    try:
+        return LIBRARY_RENDER(self, camera, near, far, exclude, views)
+    finally:
+        del self.references
 
 
 def add_eval_arguments(parser: argparse.ArgumentParser) -> None:

@@ -38,7 +38,8 @@ from view_set_probe import variants_main  # noqa: E402
 LOW, OPAQUE, FAR = 128, 0.5, 1e6  # depth-map long side (px), opacity of a surface, depth of an empty pixel
 SETTINGS = {"mode": "off", "tol": 0.15, "reach": None}
 STATE: dict = {"maps": None, "cache": {}}
-LIBRARY_RENDER = ViewRenderer.render  # before main() patches it
+LIBRARY_RENDER = ViewRenderer.render  # before main() patches them
+LIBRARY_OBSERVE = InsertNeRF.observe
 
 
 def reference_depth(renderer: ViewRenderer, index: int, exclude: list[int]) -> torch.Tensor:
@@ -80,22 +81,22 @@ def visible(encoded, points: torch.Tensor) -> torch.Tensor:
 
 
 def observe(self, encoded, rays, samples, colour=True, variance=False):
-    """InsertNeRF.observe with the references' visibility in the colour and cue weights (and the mask: all)."""
+    """InsertNeRF.observe with the references' visibility in the colour and cue weights (and the mask: all); the
+    library's own where no maps are set (variant off, the maps' own renders)."""
+    if STATE["maps"] is None:
+        return LIBRARY_OBSERVE(self, encoded, rays, samples, colour, variance)
     points = samples.points(rays)
     rays_n, samples_n = points.shape[:2]
-    seen = project_samples(encoded, points, rays.directions)
-    vis = None
-    if STATE["maps"] is not None:
-        vis = visible(encoded, points) * seen.mask
-        vis = torch.where(vis.sum(0, keepdim=True) >= 1, vis, seen.mask)  # none passes: all keep their say
-        # Carried through nearest_in_angle's per-sample choice as a fourth colour channel.
-        seen = Projected(seen.features, torch.cat([seen.colours, vis], 1), seen.mask, seen.ray_diff)
+    seen = project_samples(encoded, points, rays.directions, finer=colour)
+    vis = visible(encoded, points) * seen.mask
+    vis = torch.where(vis.sum(0, keepdim=True) >= 1, vis, seen.mask)  # none passes: all keep their say
+    # Carried through nearest_in_angle's per-sample choice as a fourth colour channel.
+    seen = Projected(seen.features, torch.cat([seen.colours, vis], 1), seen.mask, seen.ray_diff, seen.finer)
     if self.config.sample_views:
         seen = seen.nearest_in_angle(self.config.sample_views)
-    mask = seen.mask
-    if vis is not None:
-        colours, mask = seen.colours[:, :3], seen.colours[:, 3:]
-        seen = Projected(seen.features, colours, mask if SETTINGS["mode"] == "all" else seen.mask, seen.ray_diff)
+    colours, mask = seen.colours[:, :3], seen.colours[:, 3:]
+    seen = Projected(seen.features, colours, mask if SETTINGS["mode"] == "all" else seen.mask, seen.ray_diff,
+                     seen.finer)
     angle = ray_angle(seen.ray_diff)
     cost = None
     if variance:
@@ -107,7 +108,7 @@ def observe(self, encoded, rays, samples, colour=True, variance=False):
     if colour and self.config.colour_prior_views:
         dynamic = reweigh(dynamic, angular_prior(seen.ray_diff, mask, self.config.colour_prior_views, angle))
     return SampleFeatures(points=points, conds=tuple(d.reshape(rays_n, samples_n, -1) for d in descriptors),
-                          dynamic=dynamic, colours=seen.colours, colour_variance=cost)
+                          dynamic=dynamic, colours=seen.blend_colours, colour_variance=cost)
 
 
 def set_variant(variant: str) -> None:
