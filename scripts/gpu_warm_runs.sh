@@ -6,9 +6,11 @@
 #   python3 -m pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl && export PYTHONPATH=/tmp/site
 #   bash scripts/gpu_warm_runs.sh cuda auto 1      # DEVICE, TRAIN_MINUTES (auto: until END_AT), SCALE of scene counts
 # RAYS=16384 (environment) for 5x the rays per second of the 4,096 that ran (docs/training-on-gpu.md).
-# SEED_SHIFT=N adds N to every synth seed (a fresh set); RUN_SPECS="NAME:FAST|FULL:LR:SEED[:SHARE[:guide]] ..." picks
-# the runs (SHARE: train through bench/transient_train.py with transients in that share of the source views, round
-# 15; guide: train --guide-prior, round 20).
+# SEED_SHIFT=N adds N to every synth seed (a fresh set); RUN_SPECS="NAME:FAST|FULL:LR:SEED[:SHARE[:guide[:narrow]]] ..."
+# picks the runs (SHARE: train through bench/transient_train.py with transients in that share of the source views,
+# round 15; guide: train --guide-prior, round 20; narrow: train on the set plus half as many scenes again seen through
+# 20-35-degree lenses, `synth --fov 20:35`, the lens of mold_gold_cape's 26.7 degrees, round 27; its control is the
+# same spec without it). Score with bench/fov_probe.py --checkpoint W beside the dev captures.
 # MORE=M (a second call on the still-warm machine): resume every run of the first call for M more minutes, pack again.
 # .whl holds trimesh and embreex for the GPU machine's Python (synth needs them; docs/training-on-gpu.md).
 set -u
@@ -17,6 +19,7 @@ OUT=${OUT:-/tmp/gpuout}; mkdir -p "$OUT"
 W=/tmp/g27
 RUN_SPECS=${RUN_SPECS:-A_fast3e4:FAST:3e-4:0 B_full3e4:FULL:3e-4:0 C_fast1e4:FAST:1e-4:0}
 RUNS=$(for r in $RUN_SPECS; do echo -n "${r%%:*} "; done)
+case " $RUN_SPECS" in *:narrow\ *|*:narrow) NARROW=1 ;; *) NARROW= ;; esac
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 PY=${PY:-python3}
 ins() { $PY -c "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli import main; main()" "$@"; }
@@ -36,7 +39,7 @@ COMMON="--device $DEV --rays ${RAYS:-4096} --batch-scenes ${BATCH:-8} --data-bud
 if [ -n "${MORE:-}" ]; then  # the first call's runs go on from their last.pt, for MORE minutes more each
   for r in $RUNS; do
     TOTAL=$($PY -c "print(round($(cat $W/$r.minutes) + $MORE, 2))"); echo $TOTAL > $W/$r.minutes
-    trainer $r $W/mix --out $W/$r --resume --device $DEV --minutes $TOTAL >> $W/$r.log 2>&1 &
+    trainer $r $W/$(cat $W/$r.data) --out $W/$r --resume --device $DEV --minutes $TOTAL >> $W/$r.log 2>&1 &
   done
   wait; el "resumed runs done"; pack; exit 0
 fi
@@ -50,6 +53,13 @@ n() { $PY -c "print(max(2, round($1 * $SCALE)))"; }
  ins synth $W/s5r --scenes $(n 40) --views 24 --test-views 3 --resolution 200 --layout 360 --seed $(( 152 + ${SEED_SHIFT:-0} )) --workers 6 --photo > $W/syn5.log 2>&1 &
  ins synth $W/s5f --scenes $(n 30) --views 24 --test-views 3 --resolution 200 --layout forward --seed $(( 153 + ${SEED_SHIFT:-0} )) --workers 6 --photo > $W/syn6.log 2>&1 &
  ins synth $W/s5o --scenes $(n 30) --views 24 --test-views 3 --resolution 200 --layout object --seed $(( 151 + ${SEED_SHIFT:-0} )) --workers 6 > $W/syn7.log 2>&1 &
+ if [ -n "$NARROW" ]; then  # round 27's four long-lens sets (docs/training-on-gpu.md), a third of the mix then
+  wait  # after the mix: its seven sets already hold every core
+  ins synth $W/n5o --scenes $(n 35) --views 24 --test-views 3 --resolution 200 --fov 20:35 --layout object --seed $(( 271 + ${SEED_SHIFT:-0} )) --workers 4 > $W/syn8.log 2>&1 &
+  ins synth $W/n5r --scenes $(n 35) --views 24 --test-views 3 --resolution 200 --fov 20:35 --layout 360 --seed $(( 272 + ${SEED_SHIFT:-0} )) --workers 4 --photo > $W/syn9.log 2>&1 &
+  ins synth $W/n5h --scenes $(n 35) --views 30 --test-views 4 --resolution 200 --fov 20:35 --layout handheld --seed $(( 273 + ${SEED_SHIFT:-0} )) --workers 4 --photo > $W/syn10.log 2>&1 &
+  ins synth $W/n5f --scenes $(n 35) --views 24 --test-views 3 --resolution 200 --fov 20:35 --layout forward --seed $(( 274 + ${SEED_SHIFT:-0} )) --workers 4 --noise --jitter > $W/syn11.log 2>&1 &
+ fi
  wait
 ) &
 SYN=$!
@@ -63,11 +73,17 @@ done
 wait $SYN; el "synth done: $(cat $W/syn*.log | grep -ci error) error lines"; for f in $W/syn*.log; do tail -1 $f; done
 mkdir -p $W/mix; for d in $W/s4? $W/s5?; do for s in $d/scene_*; do ln -s $s $W/mix/$(basename $d)_$(basename $s); done; done
 el "mix: $(ls $W/mix | wc -l) scenes"
+if [ -n "$NARROW" ]; then  # the mix's scenes and the long-lens ones
+  mkdir -p $W/mixn; cp -P $W/mix/* $W/mixn/
+  for d in $W/n5?; do for s in $d/scene_*; do ln -s $s $W/mixn/$(basename $d)_$(basename $s); done; done
+  el "mixn: $(ls $W/mixn | wc -l) scenes"
+fi
 if [ "$MIN" = auto ]; then MIN=$($PY -c "print(round(max(1.0, (${END_AT:-525} - $(( $(date +%s) - T0 )) - 30) / 60), 2))"); fi
 el "training minutes: $MIN"
 for spec in $RUN_SPECS; do
-  IFS=: read -r name model lr seed share guide <<< "$spec"; echo $MIN > $W/$name.minutes; echo "${share:-}" > $W/$name.share
-  trainer $name $W/mix --out $W/$name ${!model} $COMMON ${guide:+--guide-prior} --seed $seed --lr $lr --steps 200000 --minutes $MIN --val-every 100000 --ckpt-every 250 > $W/$name.log 2>&1 &
+  IFS=: read -r name model lr seed share guide data <<< "$spec"; echo $MIN > $W/$name.minutes; echo "${share:-}" > $W/$name.share
+  [ "${data:-}" = narrow ] && echo mixn > $W/$name.data || echo mix > $W/$name.data
+  trainer $name $W/$(cat $W/$name.data) --out $W/$name ${!model} $COMMON ${guide:+--guide-prior} --seed $seed --lr $lr --steps 200000 --minutes $MIN --val-every 100000 --ckpt-every 250 > $W/$name.log 2>&1 &
 done
 sleep 60; nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader 2>/dev/null
 for r in $RUNS; do el "$r: $(tr '\r' '\n' < $W/$r.log | grep -v '^\s*$' | tail -1)"; done
