@@ -9,7 +9,7 @@
 # SEED_SHIFT=N adds N to every synth seed (a fresh set); RUN_SPECS="NAME:FAST|FULL:LR:SEED[:SHARE[:guide[:narrow]]] ..."
 # picks the runs (SHARE: train through bench/transient_train.py with transients in that share of the source views,
 # round 15; guide: train --guide-prior, round 20; narrow: train on the set plus half as many scenes again seen through
-# 20-35-degree lenses, `synth --fov 20:35`, the lens of mold_gold_cape's 26.7 degrees, round 27; its control is the
+# 20-35-degree lenses, `synth --fov 20:35`, around mold_gold_cape's 26.7-degree lens, round 27; its control is the
 # same spec without it). Score with bench/fov_probe.py --checkpoint W beside the dev captures.
 # MORE=M (a second call on the still-warm machine): resume every run of the first call for M more minutes, pack again.
 # .whl holds trimesh and embreex for the GPU machine's Python (synth needs them; docs/training-on-gpu.md).
@@ -39,7 +39,7 @@ COMMON="--device $DEV --rays ${RAYS:-4096} --batch-scenes ${BATCH:-8} --data-bud
 if [ -n "${MORE:-}" ]; then  # the first call's runs go on from their last.pt, for MORE minutes more each
   for r in $RUNS; do
     TOTAL=$($PY -c "print(round($(cat $W/$r.minutes) + $MORE, 2))"); echo $TOTAL > $W/$r.minutes
-    trainer $r $W/$(cat $W/$r.data) --out $W/$r --resume --device $DEV --minutes $TOTAL >> $W/$r.log 2>&1 &
+    trainer $r $W/$(cat $W/$r.data 2>/dev/null || echo mix) --out $W/$r --resume --device $DEV --minutes $TOTAL >> $W/$r.log 2>&1 &
   done
   wait; el "resumed runs done"; pack; exit 0
 fi
