@@ -15,6 +15,8 @@ blend at the prior) and changes one thing, in this process only; each is scored 
   - reach:R: the blend's prior filled R of the long side from its splats (the guide's stays REACH_FRACTION);
   - kblend:K: every pixel a reference sees gets the lumigraph blend of its K views nearest in angle at the
     rendered depth (and "half": the mean of that and the frame's colour);
+  - --points own|fresh|union: the SfM points of a scene that comes with its own (a COLMAP model): those (eval's
+    choice), points triangulated anew at its poses from the references (as for a scene without points), or both.
   - parallax:P: the colour's lumigraph weights (the generator's colour prior and the blend's) times
     exp(-(a f / P)^2 + (a_min f / P)^2), a a view's angle, f the frame's focal length in px: views whose parallax
     per unit of relative depth error passes P px lose their say, so a long lens keeps fewer.
@@ -25,11 +27,13 @@ blend at the prior) and changes one thing, in this process only; each is scored 
         --variants kblend:2,kblend:3,kblend:8
     OMP_NUM_THREADS=2 python3 bench/after_blend_probe.py --captures mold_gold_cape --views 10 --views-at 56,72,80 \
         --variants sweep:48:3
+    OMP_NUM_THREADS=1 python3 bench/after_blend_probe.py --captures room --views 3,6,10,16 --max-views 0 --points fresh
 """
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +48,8 @@ from insertnerf_cli.model.aggregate import angular_prior  # noqa: E402
 from insertnerf_cli.model.projection import ray_angle  # noqa: E402
 from insertnerf_cli.rays import rays_for_image  # noqa: E402
 from insertnerf_cli.scenes import load_scene, normalize_scene  # noqa: E402
-from insertnerf_cli.triangulate import with_points  # noqa: E402
+from insertnerf_cli.scenes.points import ScenePoints  # noqa: E402
+from insertnerf_cli.triangulate import triangulate_points, with_points  # noqa: E402
 from insertnerf_cli.view_renderer import ViewRenderer, checkpoint_path, load_model  # noqa: E402
 from insertnerf_cli.views import evenly_spread, held_out_views  # noqa: E402
 
@@ -157,15 +162,27 @@ def variant_frame(name: str, args, renderer, scene, index, camera, held, n, trut
     return torch.where((best * args.margins[0] < own)[:, None], colour.to(frame), frame)
 
 
+def scene_points(scene, references: list[int], which: str):
+    """``scene`` with the SfM points ``which`` says (--points) for a scene that comes with its own."""
+    if scene.points is None or which == "own":
+        return with_points(scene, references)
+    fresh = triangulate_points(scene, references)
+    if which == "fresh":
+        return replace(scene, points=fresh)
+    own, shift = scene.points, len(scene.points)  # union: the fresh points' indices follow the own ones
+    observed = tuple(torch.cat([a, b + shift]) for a, b in zip(own.observed, fresh.observed))
+    return replace(scene, points=ScenePoints(torch.cat([own.xyz, fresh.xyz.to(own.xyz)]), observed))
+
+
 def probe(capture: str, args) -> None:
     scene, _ = normalize_scene(load_scene(args.root / capture))
     held = held_out_views(scene)
     size = scene.size_for(256)
-    scene = with_points(scene, [i for i in range(len(scene)) if i not in held])
+    scene = scene_points(scene, [i for i in range(len(scene)) if i not in held], args.points)
     checkpoint = checkpoint_path(args.checkpoint)
     renderer = ViewRenderer(load_model(checkpoint, "cpu"), scene, size, max(args.views))
     model_module.angular_prior = parallax_cut(renderer.model.config.colour_prior_views)  # the colour's prior only
-    indices = args.views_at if args.views_at else evenly_spread(held, args.max_views)
+    indices = args.views_at if args.views_at else evenly_spread(held, args.max_views or None)
     scores: dict[str, list[float]] = {}
     for index in indices:
         camera = scene.cameras.subset([index]).rescale(*size)
@@ -187,11 +204,12 @@ def main() -> None:
     parser.add_argument("--captures", default="mold_gold_cape")
     parser.add_argument("--root", type=Path, default=ROOT)
     parser.add_argument("--views", default="3,10")
-    parser.add_argument("--max-views", type=int, default=5)
+    parser.add_argument("--max-views", type=int, default=5, help="0: every held-out view")
     parser.add_argument("--views-at", default="", help="these held-out view indices instead (comma-separated)")
     parser.add_argument("--variants", default="base")
     parser.add_argument("--margins", default="1.5,2,3", help="refine/sweep: the first is the variant's own")
     parser.add_argument("--checkpoint", type=Path, default=None)
+    parser.add_argument("--points", choices=("own", "fresh", "union"), default="own")
     args = parser.parse_args()
     args.views = [int(v) for v in args.views.split(",")]
     args.views_at = [int(v) for v in args.views_at.split(",") if v]
