@@ -15,8 +15,9 @@ blend at the prior) and changes one thing, in this process only; each is scored 
   - reach:R: the blend's prior filled R of the long side from its splats (the guide's stays REACH_FRACTION);
   - kblend:K: every pixel a reference sees gets the lumigraph blend of its K views nearest in angle at the
     rendered depth (and "half": the mean of that and the frame's colour);
-  - --points own|fresh|union: the SfM points of a scene that comes with its own (a COLMAP model): those (eval's
-    choice), points triangulated anew at its poses from the references (as for a scene without points), or both.
+  - --points own|fresh|union|tracked: the SfM points of a scene that comes with its own (a COLMAP model): those
+    (eval's choice), points triangulated anew at its poses from the references (as for a scene without points),
+    both, or its own less those that fewer than three of the views not held out observe (two-view tracks).
   - parallax:P: the colour's lumigraph weights (the generator's colour prior and the blend's) times
     exp(-(a f / P)^2 + (a_min f / P)^2), a a view's angle, f the frame's focal length in px: views whose parallax
     per unit of relative depth error passes P px lose their say, so a long lens keeps fewer.
@@ -166,6 +167,15 @@ def scene_points(scene, references: list[int], which: str):
     """``scene`` with the SfM points ``which`` says (--points) for a scene that comes with its own."""
     if scene.points is None or which == "own":
         return with_points(scene, references)
+    if which == "tracked":
+        own = scene.points
+        count = torch.zeros(len(own), dtype=torch.long)
+        for view in references:
+            count.index_add_(0, own.observed[view], torch.ones_like(own.observed[view]))
+        keep = count >= 3
+        renumber = torch.cumsum(keep.long(), 0) - 1
+        observed = tuple(renumber[rows[keep[rows]]] for rows in own.observed)
+        return replace(scene, points=ScenePoints(own.xyz[keep], observed))
     fresh = triangulate_points(scene, references)
     if which == "fresh":
         return replace(scene, points=fresh)
@@ -209,7 +219,7 @@ def main() -> None:
     parser.add_argument("--variants", default="base")
     parser.add_argument("--margins", default="1.5,2,3", help="refine/sweep: the first is the variant's own")
     parser.add_argument("--checkpoint", type=Path, default=None)
-    parser.add_argument("--points", choices=("own", "fresh", "union"), default="own")
+    parser.add_argument("--points", choices=("own", "fresh", "union", "tracked"), default="own")
     args = parser.parse_args()
     args.views = [int(v) for v in args.views.split(",")]
     args.views_at = [int(v) for v in args.views_at.split(",") if v]
