@@ -41,13 +41,13 @@ UNSEEN_COST = 1.0
 PIXELS_PER_PASS = 65536
 
 
-def reference_colours(encoded: "EncodedViews", rays: Rays, depth: Tensor) -> Projected:
+def reference_colours(encoded: "EncodedViews", rays: Rays, depth: Tensor, finer: bool = True) -> Projected:
     """What each reference sees of R rays' points at camera-z ``depth`` [R] (the rays' directions have z = 1;
-    NaN: nothing there, masked out): colours [V, 3, R] at the frame's size, finer ones where encoded holds them,
-    mask [V, 1, R], ray_diff [V, 4, R]."""
+    NaN: nothing there, masked out): colours [V, 3, R] at the frame's size, finer ones where encoded holds them
+    and ``finer`` asks (only a blend reads them), mask [V, 1, R], ray_diff [V, 4, R]."""
     known = torch.isfinite(depth)
     points = rays.origins + rays.directions * torch.where(known, depth, torch.ones_like(depth))[:, None]  # [R, 3]
-    seen = project_samples(encoded, points[:, None], rays.directions, features=False)
+    seen = project_samples(encoded, points[:, None], rays.directions, finer=finer, features=False)
     return Projected((), seen.colours, seen.mask * known.to(seen.mask)[None, None], seen.ray_diff, seen.finer)
 
 
@@ -94,7 +94,9 @@ def blend_at_prior(frame: "ImageOutput", encoded: "EncodedViews", camera: Camera
         at_prior.append(variance(seen))
         colours.append(blend(seen))
         seen_twice.append(seen.mask.sum(dim=(0, 1)) >= 2)
-        at_render.append(variance(reference_colours(encoded, part, rendered[start:start + PIXELS_PER_PASS])))
+        # The rendered depth is only tested, never blended at: no finer colours.
+        at_render.append(variance(reference_colours(encoded, part, rendered[start:start + PIXELS_PER_PASS],
+                                                     finer=False)))
     size = (height, width)
     agree_prior, agree_render = (patch_mean(torch.cat(c), size) for c in (at_prior, at_render))
     # A pixel whose own prior point fewer than two references see has no blend to speak of (none: black), however
