@@ -84,22 +84,21 @@ def seen_at(renderer, refs, camera, depth: torch.Tensor):
     return pb.patch_mean(pb.variance(seen), renderer.size), pb.blend(seen), seen
 
 
-def search(renderer, refs, camera, out, depths, truth=None):
-    """Over candidate depth maps: (lowest patch variance, its blend, the oracle's blend or None)."""
-    best, colour = None, None
-    oracle_err, oracle = None, None
+def search(renderer, refs, camera, depths, truth=None):
+    """Over candidate depth maps [R] each: (lowest patch variance, its blend, the oracle's blend or None)."""
+    pixels = len(depths[0])
+    best, colour = torch.full((pixels,), float("inf")), torch.zeros(pixels, 3)
+    oracle_err, oracle = best.clone(), colour.clone()
     for depth in depths:
         var, col, _ = seen_at(renderer, refs, camera, depth)
-        better = var < best if best is not None else torch.ones_like(var, dtype=torch.bool)
-        best = torch.where(better, var, best) if best is not None else var
-        colour = torch.where(better[:, None], col, colour) if colour is not None else col
+        better = var < best
+        best, colour = torch.where(better, var, best), torch.where(better[:, None], col, colour)
         if truth is not None:
             err = pb.patch_mean(((col.double() - torch.from_numpy(truth.reshape(-1, 3))) ** 2).sum(-1).float(),
                                 renderer.size)
-            take = err < oracle_err if oracle_err is not None else torch.ones_like(err, dtype=torch.bool)
-            oracle_err = torch.where(take, err, oracle_err) if oracle_err is not None else err
-            oracle = torch.where(take[:, None], col, oracle) if oracle is not None else col
-    return best, colour, oracle
+            take = err < oracle_err
+            oracle_err, oracle = torch.where(take, err, oracle_err), torch.where(take[:, None], col, oracle)
+    return best, colour, (oracle if truth is not None else None)
 
 
 def variant_frame(name: str, args, renderer, scene, index, camera, held, n, truth, extra: dict):
@@ -131,7 +130,7 @@ def variant_frame(name: str, args, renderer, scene, index, camera, held, n, trut
     if kind == "base":
         return out.rgb
     rendered = out.depth.float().reshape(-1)
-    own, _, seen = seen_at(renderer, refs, camera, rendered)
+    own, at_rendered, seen = seen_at(renderer, refs, camera, rendered)
     frame = out.rgb.reshape(-1, 3)
     if kind == "kblend":
         weights = angular_prior(seen.ray_diff, seen.mask, int(rest[0]))
@@ -143,15 +142,15 @@ def variant_frame(name: str, args, renderer, scene, index, camera, held, n, trut
     if kind == "refine":
         steps, step = int(rest[0]), float(rest[1])
         depths = [rendered * (1.0 + k * step) for k in range(-steps, steps + 1) if k]
-        best, colour, _ = search(renderer, refs, camera, out, depths)
+        best, colour, _ = search(renderer, refs, camera, depths)
     elif kind == "sweep":
         planes, span = int(rest[0]), float(rest[1])
         depths = [torch.full_like(rendered, float(1.0 / d))
                   for d in torch.linspace(1.0 / near, 1.0 / (span * far), planes)]
-        best, colour, oracle = search(renderer, refs, camera, out, depths, truth)
+        best, colour, oracle = search(renderer, refs, camera, depths, truth)
         prior = renderer._prior(camera, refs)
         bare = ~np.isfinite(prior.numpy().reshape(-1)) if prior is not None else np.ones(len(rendered), bool)
-        for label, rgb in (("gen", frame), ("blend@rendered", seen_at(renderer, refs, camera, rendered)[1]),
+        for label, rgb in (("gen", frame), ("blend@rendered", at_rendered),
                            ("blend@swept", colour), ("oracle", oracle)):
             extra.setdefault(f"{name}:bare:{label}", []).append(psnr(rgb, truth, bare))
         best = torch.where(torch.from_numpy(bare), best, torch.full_like(best, float("inf")))
