@@ -15,9 +15,11 @@ blend at the prior) and changes one thing, in this process only; each is scored 
   - reach:R: the blend's prior filled R of the long side from its splats (the guide's stays REACH_FRACTION);
   - kblend:K: every pixel a reference sees gets the lumigraph blend of its K views nearest in angle at the
     rendered depth (and "half": the mean of that and the frame's colour);
-  - --points own|fresh|union|tracked: the SfM points of a scene that comes with its own (a COLMAP model): those
+  - --points own|fresh|union|tracked|flat: the SfM points of a scene that comes with its own (a COLMAP model): those
     (eval's choice), points triangulated anew at its poses from the references (as for a scene without points),
-    both, or its own less those that fewer than three of the views not held out observe (two-view tracks).
+    both, or its own less those that fewer than three of the views not held out observe (two-view tracks);
+    flat: the points as they are, with round 29's prior: every point a frame's references see in one layer, where
+    render's (round 30) lets those fewer than three usable views observe fill only what the others leave empty.
   - parallax:P: the colour's lumigraph weights (the generator's colour prior and the blend's) times
     exp(-(a f / P)^2 + (a_min f / P)^2), a a view's angle, f the frame's focal length in px: views whose parallax
     per unit of relative depth error passes P px lose their say, so a long lens keeps fewer.
@@ -119,7 +121,7 @@ def variant_frame(name: str, args, renderer, scene, index, camera, held, n, trut
             out, refs = renderer.render(camera, near, far, held, n)
         finally:
             renderer.prior_blend = True
-        prior = renderer._prior(camera, refs)
+        prior = renderer._prior(camera, refs, held)
         seen = scene.points.seen_from(list(refs), near=list(refs)[:depth_prior.PRIOR_VIEWS])
         if prior is None or not len(seen):
             return out.rgb
@@ -148,7 +150,7 @@ def variant_frame(name: str, args, renderer, scene, index, camera, held, n, trut
         depths = [torch.full_like(rendered, float(1.0 / d))
                   for d in torch.linspace(1.0 / near, 1.0 / (span * far), planes)]
         best, colour, oracle = search(renderer, refs, camera, depths, truth)
-        prior = renderer._prior(camera, refs)
+        prior = renderer._prior(camera, refs, held)
         bare = ~np.isfinite(prior.numpy().reshape(-1)) if prior is not None else np.ones(len(rendered), bool)
         for label, rgb in (("gen", frame), ("blend@rendered", at_rendered),
                            ("blend@swept", colour), ("oracle", oracle)):
@@ -164,14 +166,13 @@ def variant_frame(name: str, args, renderer, scene, index, camera, held, n, trut
 
 def scene_points(scene, references: list[int], which: str):
     """``scene`` with the SfM points ``which`` says (--points) for a scene that comes with its own."""
-    if scene.points is None or which == "own":
+    if which == "flat":
+        depth_prior.WELL_TRACKED = 0  # every point of a frame's prior in one layer
+    if scene.points is None or which in ("own", "flat"):
         return with_points(scene, references)
     if which == "tracked":
         own = scene.points
-        count = torch.zeros(len(own), dtype=torch.long)
-        for view in references:
-            count.index_add_(0, own.observed[view], torch.ones_like(own.observed[view]))
-        keep = count >= 3
+        keep = own.observers(references) >= 3
         renumber = torch.cumsum(keep.long(), 0) - 1
         observed = tuple(renumber[rows[keep[rows]]] for rows in own.observed)
         return replace(scene, points=ScenePoints(own.xyz[keep], observed))
@@ -218,7 +219,7 @@ def main() -> None:
     parser.add_argument("--variants", default="base")
     parser.add_argument("--margins", default="1.5,2,3", help="refine/sweep: the first is the variant's own")
     parser.add_argument("--checkpoint", type=Path, default=None)
-    parser.add_argument("--points", choices=("own", "fresh", "union", "tracked"), default="own")
+    parser.add_argument("--points", choices=("own", "fresh", "union", "tracked", "flat"), default="own")
     args = parser.parse_args()
     args.views = [int(v) for v in args.views.split(",")]
     args.views_at = [int(v) for v in args.views_at.split(",") if v]

@@ -67,9 +67,9 @@ def main() -> None:
 
     def render(self, camera, near, far, exclude, views=None):
         refs = self.references(camera.c2w[0], exclude, views)
-        prior = self._prior(camera, refs)
+        prior = self._prior(camera, refs, exclude)
         bounding = prior if args.far_views is None or len(refs) <= args.far_views else \
-            self._prior(camera, refs[:args.far_views])
+            self._prior(camera, refs[:args.far_views], exclude)
         wide = covering(far, bounding, margin[0], args.quantile, far=True, only_past=args.only_past,
                         trigger=args.trigger)
         raised.append(wide / far)

@@ -178,7 +178,7 @@ def probe(capture: str, views: int, max_views: int | None, ks: list[int], root: 
         ref_cams = scene.cameras.subset(refs).rescale(*size)
         photos = torch.from_numpy(np.stack([scene.load_image(i, *size) for i in refs]).astype(np.float32))
         photos = photos.permute(0, 3, 1, 2)
-        prior = renderer._prior(camera, refs)
+        prior = renderer._prior(camera, refs, held)
         has = ~torch.isnan(prior.reshape(-1)) if prior is not None else torch.zeros(len(gen), dtype=torch.bool)
         row = {"view": scene.names[index], "cover": float(has.float().mean()), "gen": psnr(gen, truth),
                "gen@prior": psnr(gen[has], truth[has]) if has.any() else float("nan")}

@@ -47,17 +47,32 @@ REACH_FRACTION = 12 / 256
 # observes: a point seen only from farther views is often hidden from it (round 19: at 16 views, capping at 10
 # scored room 27.30 dB against 27.15 and mold_gold_cape 16.73 against 16.66; 6 scored within 0.07 dB of 10).
 PRIOR_VIEWS = DEFAULT_VIEWS
+# A point that this many of the views a frame may draw from observe is placed by as many rays; a two-view track
+# by two, and its depth errs more. Room's COLMAP model holds a quarter of such tracks (the points we triangulate
+# ourselves 1-2 %), and its frames score 0.2-0.3 dB more at 10-16 views when they splat only where the
+# better-placed points leave the prior empty. Dropping them outright costs a capture of few photos, whose prior
+# needs them (castle, 11 photos: -0.6 dB at 9 views); docs/model-card.md rounds 29-30.
+WELL_TRACKED = 3
 
 
-def view_prior(points: "ScenePoints", camera: Cameras, refs: Sequence[int]) -> Tensor | None:
+def view_prior(points: "ScenePoints", camera: Cameras, refs: Sequence[int],
+               pool: Sequence[int] | None = None) -> Tensor | None:
     """[H, W] the prior of ``camera`` (1) from the points that two of its references ``refs`` (nearest first)
     observe and one of the PRIOR_VIEWS nearest does, or None when no point is left: points the frame's references
     would triangulate themselves, which they see, as the generator matching them does. Observations of any other
     view (eval's held-out photo, fine-tuning's target, a far photo that sees round an occluder) lend nothing; a
-    sparse cloud would otherwise paint the far side of an object into the splats (rounds 19 and 25)."""
+    sparse cloud would otherwise paint the far side of an object into the splats (rounds 19 and 25).
+    With ``pool`` (every view the frame may draw its references from), the points fewer than WELL_TRACKED of those
+    observe only fill the pixels the others leave without a prior."""
     refs = list(refs)
-    seen = points.seen_from(refs, near=refs[:PRIOR_VIEWS])
-    return prior_depth(seen, camera) if len(seen) else None
+    seen = points.seen_mask(refs, near=refs[:PRIOR_VIEWS])
+    if not bool(seen.any()):
+        return None
+    if pool is None or points.observed is None:
+        return prior_depth(points.xyz[seen], camera)
+    placed = seen & (points.observers(list(pool)) >= WELL_TRACKED)
+    layers = [prior_depth(points.xyz[keep], camera) for keep in (placed, seen & ~placed) if bool(keep.any())]
+    return layers[0] if len(layers) == 1 else torch.where(torch.isnan(layers[0]), layers[1], layers[0])
 
 
 def prior_depth(points: Tensor, camera: Cameras, reach_fraction: float | None = None) -> Tensor:

@@ -120,7 +120,7 @@ class ViewRenderer:
         from .render import render_image
 
         refs = self.references(camera.c2w[0], exclude, views)
-        prior = self._prior(camera, refs)
+        prior = self._prior(camera, refs, exclude)
         encoded, far = self._encoded(refs), covering_far(far, prior)
         frame = render_image(self.model, encoded, camera, near, far, self.chunk, self.shortcuts, prior)
         if prior is not None and self.prior_blend:
@@ -134,13 +134,16 @@ class ViewRenderer:
         past it (depth_prior.covering_far), so that a caller can size its depth files before the frames exist."""
         from .depth_prior import covering_far
 
-        return covering_far(far, self._prior(camera, self.references(camera.c2w[0], exclude, views)))
+        refs = self.references(camera.c2w[0], exclude, views)
+        return covering_far(far, self._prior(camera, refs, exclude))
 
-    def _prior(self, camera: Cameras, refs: list[int]) -> torch.Tensor | None:
+    def _prior(self, camera: Cameras, refs: list[int], exclude: list[int]) -> torch.Tensor | None:
         """[H, W] the SfM depth prior of ``camera``, or None: depth_prior.view_prior of the frame's references
-        ``refs`` (nearest first; never an excluded view, so eval's held-out photo lends no observation)."""
+        ``refs`` (nearest first), its tracks counted over the views not in ``exclude`` (so eval's held-out photo
+        lends no observation)."""
         if not self.sfm_depth:
             return None
         from .depth_prior import view_prior
 
-        return view_prior(self.scene.points, camera, refs)
+        left = set(exclude)
+        return view_prior(self.scene.points, camera, refs, [i for i in range(len(self.scene)) if i not in left])

@@ -143,6 +143,28 @@ def test_a_frames_prior_uses_only_the_points_two_of_its_references_observe() -> 
     torch.testing.assert_close(depth, torch.full((H, W), 4.0, dtype=depth.dtype))
 
 
+def test_two_view_tracks_fill_only_where_better_placed_points_leave_the_prior_empty() -> None:
+    left = plane_points(2.0, 0.05)
+    left = left[left[:, 0] < 0]  # the left half of the frame, nearer
+    wide = plane_points(4.0, 0.05)  # the whole frame, farther
+    xyz = torch.cat([left, wide])
+    n = len(left)
+    # The near half is a two-view track (references 0 and 1); the far plane is seen by 0, 1 and view 2 as well.
+    observed = (torch.arange(len(xyz)), torch.arange(len(xyz)), torch.arange(n, len(xyz)))
+    points = ScenePoints(xyz, observed)
+    flat = view_prior(points, camera_at_origin(), [0, 1])  # round 29's rule: the nearest point wins
+    assert float(flat[H // 2, 2]) == pytest.approx(2.0) and float(flat[H // 2, W - 3]) == pytest.approx(4.0)
+    placed = view_prior(points, camera_at_origin(), [0, 1], pool=[0, 1, 2])  # the far plane has three observers
+    torch.testing.assert_close(placed, torch.full((H, W), 4.0, dtype=placed.dtype))
+    # Where no better-placed point lies, the two-view track still gives the prior.
+    alone = ScenePoints(left, tuple(torch.arange(n) for _ in range(2)) + (torch.zeros(0, dtype=torch.int64),))
+    filled = view_prior(alone, camera_at_origin(), [0, 1], pool=[0, 1, 2])
+    torch.testing.assert_close(filled, view_prior(alone, camera_at_origin(), [0, 1]), equal_nan=True)
+    assert float(filled[H // 2, 2]) == pytest.approx(2.0)
+    # A held-out view outside the pool lends no observer: the far plane is then a two-view track too.
+    torch.testing.assert_close(view_prior(points, camera_at_origin(), [0, 1], pool=[0, 1]), flat, equal_nan=True)
+
+
 def test_a_colmap_scene_carries_its_points_into_normalised_units(tmp_path: Path) -> None:
     known = known_scene(5)
     scene = load_scene(write_colmap(tmp_path / "c", known))

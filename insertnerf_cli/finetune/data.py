@@ -95,7 +95,7 @@ class TargetPriors:
             prior = None
             if points is not None and others:
                 order = nearest_views(scene.cameras.c2w[target], scene.cameras.c2w[others], PRIOR_VIEWS, scene.method)
-                prior = view_prior(points, scene.cameras.subset([target]), [others[i] for i in order])
+                prior = view_prior(points, scene.cameras.subset([target]), [others[i] for i in order], others)
                 self.far[target] = covering_far(float(scene.far[target]), prior)
             self.flat[target] = None if prior is None else prior.reshape(-1).to(device, torch.float32)  # [H * W]
 

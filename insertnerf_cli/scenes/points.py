@@ -47,15 +47,21 @@ class ScenePoints:
         triangulated (every point when the observations are unknown); with ``near``, only those that one of the
         ``near`` views observes too (a target's nearest views: points they see are rarely hidden from it).
         """
-        if self.observed is None:
-            return self.xyz
-        keep = self._count(views) >= MIN_OBSERVERS
-        if near is not None:
-            keep &= self._count(near) >= 1
-        return self.xyz[keep]
+        return self.xyz[self.seen_mask(views, near)]
 
-    def _count(self, views: Sequence[int]) -> Tensor:
-        """[P] how many of ``views`` observe each point."""
+    def seen_mask(self, views: Sequence[int], near: Sequence[int] | None = None) -> Tensor:
+        """[P] bool: which points seen_from(views, near) keeps."""
+        if self.observed is None:
+            return torch.ones(len(self), dtype=torch.bool)
+        keep = self.observers(views) >= MIN_OBSERVERS
+        if near is not None:
+            keep &= self.observers(near) >= 1
+        return keep
+
+    def observers(self, views: Sequence[int]) -> Tensor:
+        """[P] how many of ``views`` observe each point (observations known)."""
+        if self.observed is None:
+            raise ValueError("observers() needs the points' observations; this cloud has none")
         chosen = [self.observed[v] for v in views]
         if not chosen:
             return torch.zeros(len(self), dtype=torch.int64)
