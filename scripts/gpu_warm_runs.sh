@@ -13,7 +13,7 @@
 # same spec without it). Score with bench/fov_probe.py --checkpoint W beside the dev captures.
 # MORE=M (a second call on the still-warm machine): resume every run of the first call for M more minutes, pack again.
 # .whl holds trimesh, embreex and pycolmap for the GPU machine's Python (synth needs the first two; the CLI imports
-# pycolmap on the way to `train` since round 23's finetune loop; 52 MB of the 64 MiB carry; docs/training-on-gpu.md).
+# pycolmap on the way to `train` since finetune's SfM prior, a28cd39; 52 MB of the 64 MiB carry; docs/training-on-gpu.md).
 set -u
 DEV=${1:-cuda}; MIN=${2:-auto}; SCALE=${3:-1}
 OUT=${OUT:-/tmp/gpuout}; mkdir -p "$OUT"
