@@ -10,7 +10,7 @@ import trimesh
 
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
-from insertnerf_cli.triangulate import triangulate_points, with_points
+from insertnerf_cli.triangulate import TriangulateOptions, triangulate_points, with_points
 from scene_fixtures import bench_module
 
 VIEWS, SIZE = 8, 160
@@ -42,11 +42,12 @@ def _true_depth_ratio(mesh: trimesh.Trimesh, centre: np.ndarray, points: np.ndar
     return dist / surface
 
 
-def test_points_triangulated_at_the_scene_poses_lie_on_the_surface(room) -> None:
+@pytest.mark.parametrize("epipolar", [True, False], ids=["along-epipolar-lines", "colmap-matcher"])
+def test_points_triangulated_at_the_scene_poses_lie_on_the_surface(room, epipolar: bool) -> None:
     root, mesh = room
     scene = load_scene(root)
     assert scene.points is None
-    points = triangulate_points(scene, quiet=True)
+    points = triangulate_points(scene, options=TriangulateOptions(along_epipolar_lines=epipolar), quiet=True)
     assert len(points) > 200
     assert all(len(o) > 50 for o in points.observed)
     ratio = _true_depth_ratio(mesh, scene.cameras.centers[0].numpy(), points.xyz[points.observed[0]].numpy())
