@@ -12,6 +12,7 @@ issue 27 round 31).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,8 +25,11 @@ MAX_EPIPOLAR_ERROR = 4.0
 # and at most MAX_DISTANCE radians.
 MAX_RATIO = 0.8
 MAX_DISTANCE = 0.7
-# Rows of the descriptor table compared at once: 2,048 x 8,192 float32 distances are 64 MiB.
-ROWS_PER_BLOCK = 2048
+# Keypoints whose epipolar lines are tested at once. Taken in the order of their lines' angles, a block's lines
+# lie side by side, so that the other view's keypoints near any of them are a small share, and only those are
+# compared by descriptor (the same matches as blocks in file order, 2.7x faster on flower's ~9,600 keypoints a
+# photo, 1.8x on mold_gold_cape's ~2,600).
+ROWS_PER_BLOCK = 512
 
 
 @dataclass(frozen=True)
@@ -95,14 +99,18 @@ def _pairs_in_band(lines: torch.Tensor, rays: torch.Tensor, band: torch.Tensor, 
     (b's keypoints along ``rays`` [Nb, 3]) is within both ``band`` [Na] and ``other_band`` [Nb] (a few per cent of
     all pairs), and the cosine of the angle between their ``descriptors`` [Na, 128] and ``other`` [Nb, 128]."""
     found_a, found_b, found = [], [], []
+    # Lines through one epipole in the order of their angle about it (with the epipole far off: of their offset).
+    order = torch.argsort(torch.atan2(lines[:, 1].double(), lines[:, 0].double()).remainder(math.pi))
     for start in range(0, len(lines), ROWS_PER_BLOCK):
-        rows = slice(start, start + ROWS_PER_BLOCK)
+        rows = order[start:start + ROWS_PER_BLOCK]
         residual = (lines[rows] @ rays.T).abs_()  # [n, Nb]
         near = (residual <= band[rows, None]) & (residual <= other_band[None, :])
-        index_a, index_b = torch.nonzero(near, as_tuple=True)
-        found.append((descriptors[rows] @ other.T)[index_a, index_b])  # a matrix product beats a gather of rows
-        found_a.append(index_a + start)
-        found_b.append(index_b)
+        columns = torch.nonzero(near.any(dim=0)).flatten()
+        index_a, index_b = torch.nonzero(near[:, columns], as_tuple=True)
+        # A matrix product over the block's candidates beats a gather of descriptor rows per pair.
+        found.append((descriptors[rows] @ other[columns].T)[index_a, index_b])
+        found_a.append(rows[index_a])
+        found_b.append(columns[index_b])
     return torch.cat(found_a), torch.cat(found_b), torch.cat(found)
 
 
