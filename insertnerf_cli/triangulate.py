@@ -36,14 +36,14 @@ RANDOM_SEED = 0
 ORDERED_THREADS = 1
 # SIFT's contrast threshold, below COLMAP's 1/150: the keypoints on faint texture (tissue, a plain wooden box, a
 # lab's far wall) that matching along the epipolar lines can place. mold_gold_cape at 1/500: 1.1x the points with
-# COLMAP's matcher, 2x with the epipolar one (issue 27 round 31).
+# COLMAP's matcher, 2.1x with the epipolar one (issue 27 round 31).
 PEAK_THRESHOLD = 0.002
 
 
 @dataclass(frozen=True)
 class TriangulateOptions:
     """How `triangulate_points` works: pairs per view, SIFT image size, CPU threads for feature extraction and
-    matching (-1: all), matches searched along the known epipolar lines (epipolar_matching; False: COLMAP's
+    COLMAP's matching (-1: all; the epipolar matcher runs on torch's threads), matches searched along the known epipolar lines (epipolar_matching; False: COLMAP's
     matcher, which knows no poses, and its RANSAC), SIFT's contrast threshold."""
 
     neighbours: int = NEIGHBOURS
