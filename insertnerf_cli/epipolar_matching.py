@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .posecheck import skew
+
 # A keypoint's rivals are those within this many pixels of its epipolar line (COLMAP's RANSAC error for
 # two-view geometry, whose guided matching uses the same band).
 MAX_EPIPOLAR_ERROR = 4.0
@@ -67,10 +69,7 @@ def essential_matrix(a: ViewFeatures, b: ViewFeatures) -> np.ndarray:
     rotation_a, rotation_b = a.cam_from_world[:, :3], b.cam_from_world[:, :3]
     rotation = rotation_b @ rotation_a.T  # b from a
     translation = b.cam_from_world[:, 3] - rotation @ a.cam_from_world[:, 3]
-    cross = np.array([[0.0, -translation[2], translation[1]],
-                      [translation[2], 0.0, -translation[0]],
-                      [-translation[1], translation[0], 0.0]])
-    return cross @ rotation
+    return skew(translation) @ rotation
 
 
 def epipolar_matches(a: ViewFeatures, b: ViewFeatures, max_error: float = MAX_EPIPOLAR_ERROR,

@@ -121,7 +121,8 @@ def rotation_angle_deg(rotation: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
+def skew(v: np.ndarray) -> np.ndarray:
+    """[3, 3] the matrix of the cross product with ``v`` [3]: skew(v) @ x == np.cross(v, x)."""
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
@@ -154,7 +155,7 @@ def two_view_pose(pair: PairMatches, threshold_px: float, seed: int = 0) -> tupl
 def _explained(pair: PairMatches, threshold_px: float) -> int:
     """How many of the pair's matches the reconstruction's relative pose explains (Sampson distance, pixels)."""
     t = pair.translation / max(float(np.linalg.norm(pair.translation)), 1e-300)
-    dist = sampson_distance(_skew(t) @ pair.rotation, pair.points1, pair.points2) * pair.pixel_scale
+    dist = sampson_distance(skew(t) @ pair.rotation, pair.points1, pair.points2) * pair.pixel_scale
     return int((dist < threshold_px).sum())
 
 

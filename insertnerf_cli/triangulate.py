@@ -139,15 +139,15 @@ def _match_with_colmap(work: Path, db_path: Path, pairs: list[tuple[str, str]], 
 def _match_along_epipolar_lines(rec: "pycolmap.Reconstruction", db_path: Path, pairs: list[tuple[int, int]]) -> None:
     """Writes each image pair's matches along the epipolar lines of the model's poses (epipolar_matching) into the
     database, as the verified matches the triangulator reads."""
+    from .colmap_model import cam_from_world
     from .epipolar_matching import epipolar_matches, view_features
 
     features = {}
     with pycolmap.Database.open(db_path) as db:
         for image_id in sorted({i for pair in pairs for i in pair}):
             image = rec.images[image_id]
-            pose = image.cam_from_world().matrix() if callable(image.cam_from_world) else image.cam_from_world.matrix()
             features[image_id] = view_features(rec.cameras[image.camera_id], db.read_keypoints(image_id),
-                                               db.read_descriptors(image_id).data, pose)
+                                               db.read_descriptors(image_id).data, cam_from_world(image))
         for a, b in pairs:
             first, second = min(a, b), max(a, b)
             matches = epipolar_matches(features[first], features[second])
