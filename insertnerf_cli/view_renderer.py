@@ -60,11 +60,13 @@ class ViewRenderer:
             many times ``size`` (1: at ``size``, in the images the U-Net encodes).
         prior_blend: where a frame has an SfM prior, give the pixels whose references agree better at its depth
             their blend there (prior_blend.blend_at_prior); False: the generator's frame alone (bench probes).
+        occlusion: where the scene's points say which views observe them, a reference whose own points put a
+            nearer surface in front of a sample stops seeing it (model.occlusion; with sfm_depth only).
     """
 
     def __init__(self, model: torch.nn.Module, scene, size: tuple[int, int], views: int, device: str = "cpu",
                  chunk: int | None = None, exact: bool = False, sfm_depth: bool = True,
-                 colour_scale: float = COLOUR_SCALE, prior_blend: bool = True) -> None:
+                 colour_scale: float = COLOUR_SCALE, prior_blend: bool = True, occlusion: bool = True) -> None:
         self.model = model
         self.scene, self.size, self.k = scene, size, views
         self.colour_size = colour_size(size, (scene.cameras.height, scene.cameras.width), colour_scale)
@@ -78,6 +80,9 @@ class ViewRenderer:
         self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
         self.sfm_depth = sfm_depth and scene.points is not None
         self.prior_blend = prior_blend
+        self.occlusion = self.sfm_depth and occlusion and scene.points.observed is not None
+        self.maps: dict[int, torch.Tensor] = {}  # view index -> its occlusion map, for the views of maps_pool
+        self.maps_pool: tuple[int, ...] = ()
 
     def references(self, target_c2w: torch.Tensor, exclude: list[int], views: int | None = None) -> list[int]:
         from .views import nearest_views
@@ -122,6 +127,8 @@ class ViewRenderer:
         refs = self.references(camera.c2w[0], exclude, views)
         prior = self._prior(camera, refs, exclude)
         encoded, far = self._encoded(refs), covering_far(far, prior)
+        if self.occlusion:
+            encoded = encoded.with_occlusion(self._occlusion(sorted(refs), exclude))
         frame = render_image(self.model, encoded, camera, near, far, self.chunk, self.shortcuts, prior)
         if prior is not None and self.prior_blend:
             from .prior_blend import blend_at_prior
@@ -136,6 +143,22 @@ class ViewRenderer:
 
         refs = self.references(camera.c2w[0], exclude, views)
         return covering_far(far, self._prior(camera, refs, exclude))
+
+    def _occlusion(self, refs: list[int], exclude: list[int]):
+        """The Occlusion of ``refs`` (in this order; as _encoded orders them), their maps made from the points the
+        views not in ``exclude`` track (occlusion_maps.reference_map), kept while ``exclude`` stays the same."""
+        from .occlusion_maps import occlusion, reference_map
+
+        left = set(exclude)
+        pool = tuple(i for i in range(len(self.scene)) if i not in left)
+        if pool != self.maps_pool:
+            self.maps, self.maps_pool = {}, pool
+        cameras = self.scene.cameras.subset(refs)
+        for row, view in enumerate(refs):
+            if view not in self.maps:
+                self.maps[view] = reference_map(self.scene.points, cameras.subset([row]), view, pool)
+        param = next(self.model.parameters())
+        return occlusion([self.maps[v] for v in refs], cameras).to(param)
 
     def _prior(self, camera: Cameras, refs: list[int], exclude: list[int]) -> torch.Tensor | None:
         """[H, W] the SfM depth prior of ``camera``, or None: depth_prior.view_prior of the frame's references

@@ -155,6 +155,7 @@ class InsertNeRF(nn.Module):
         seen = project_samples(encoded, points, rays.directions, finer=colour)
         if self.config.sample_views:
             seen = seen.nearest_in_angle(self.config.sample_views)
+        seen = seen.unoccluded()  # the views that see a nearer surface in front of a sample drop out
         prior_views = self.config.colour_prior_views if colour else 0
         # One angle per view and sample serves the colour prior and the cue's prior (the asin is a third of each).
         angle = ray_angle(seen.ray_diff) if variance or prior_views else None  # [V, 1, P]

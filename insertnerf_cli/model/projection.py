@@ -6,13 +6,14 @@ per-view linear layers are one batched matrix product ``W [O, C] @ x [V, C, P]``
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 from ..cameras import Cameras
+from .occlusion import visible
 from .types import EncodedViews
 
 # Grid coordinate given to samples a view cannot see: outside [-1, 1], so zero padding returns zeros for them.
@@ -32,6 +33,9 @@ class Projected:
             view looks at the sample.
         finer: [V, 3, P] the same colours looked up in EncodedViews.colours (the photos at a finer size), or None
             where there are none; the output colour blends these (blend_colours).
+        visible: [V, 1, P] ``mask`` less the views whose SfM points put a nearer surface in front of the sample
+            (occlusion.visible), or None where the references carry no Occlusion. The choice of the views
+            nearest in angle still reads ``mask`` (as the probes measured it); ``unoccluded`` then applies it.
     """
 
     features: tuple[Tensor, ...]
@@ -39,6 +43,7 @@ class Projected:
     mask: Tensor  # [V, 1, P]
     ray_diff: Tensor  # [V, 4, P]
     finer: Tensor | None = None  # [V, 3, P]
+    visible: Tensor | None = None  # [V, 1, P]
 
     @property
     def blend_colours(self) -> Tensor:
@@ -64,7 +69,14 @@ class Projected:
             return torch.gather(x, 0, index.expand(views, x.shape[1], x.shape[2]))
 
         return Projected(tuple(pick(f) for f in self.features), pick(self.colours), pick(self.mask),
-                         pick(self.ray_diff), None if self.finer is None else pick(self.finer))
+                         pick(self.ray_diff), None if self.finer is None else pick(self.finer),
+                         None if self.visible is None else pick(self.visible))
+
+    def unoccluded(self) -> Projected:
+        """These views with ``visible`` as their mask (``self`` where there is none)."""
+        if self.visible is None:
+            return self
+        return replace(self, mask=self.visible, visible=None)
 
 
 def ray_angle(ray_diff: Tensor) -> Tensor:
@@ -103,8 +115,11 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor, f
     looked_up = tuple(_sample(f, grid) for f in encoded.features) if features else ()
     centers = encoded.centers.to(points)
     fine = _finer_colours(encoded, uv, valid) if finer and encoded.colours is not None else None
-    return Projected(looked_up, _sample(encoded.images, grid), valid.to(points.dtype),
-                     _ray_diff(centers, flat, directions, samples), fine)
+    mask, ray_diff = valid.to(points.dtype), _ray_diff(centers, flat, directions, samples)
+    # Only the network's inputs read occlusion (features=False is prior_blend's plain lookup).
+    seen = None if encoded.occlusion is None or not features else \
+        visible(encoded.occlusion, uv, depth, mask, ray_angle(ray_diff), encoded.width, encoded.height)
+    return Projected(looked_up, _sample(encoded.images, grid), mask, ray_diff, fine, seen)
 
 
 def _finer_colours(encoded: EncodedViews, uv: Tensor, valid: Tensor) -> Tensor:

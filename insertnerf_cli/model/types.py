@@ -10,6 +10,7 @@ from torch import Tensor
 from ..cameras import Cameras, check_shape
 from ..compositing import Composite
 from ..sampling import RaySamples
+from .occlusion import Occlusion
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,9 @@ class EncodedViews:
             photos at up to twice the frame's size: a bilinear lookup at the frame's own size blurs each colour
             over two of the frame's pixels, while the photo the render is scored against is an area average over
             one. The network's inputs still read ``images``, as in training (Projected.finer).
+        occlusion: the nearer surfaces each view's own SfM points show (occlusion.Occlusion), which mask the
+            samples hidden from it; None (training, scenes without points): every view sees what lies in front
+            of it. Set per frame (with_occlusion); ``join`` drops it.
     """
 
     features: tuple[Tensor, ...]
@@ -63,10 +67,13 @@ class EncodedViews:
     width: int
     reconstruction: Tensor | None = None  # [V, 3, H, W]
     colours: Tensor | None = None  # [V, 3, Hc, Wc]
+    occlusion: Occlusion | None = None
 
     def __post_init__(self) -> None:
         if self.colours is not None:
             check_shape("colours", self.colours, (len(self.images), 3, None, None))
+        if self.occlusion is not None:
+            check_shape("occlusion.depth", self.occlusion.depth, (len(self.images), 1, None, None))
 
     def __len__(self) -> int:
         return self.images.shape[0]
@@ -85,12 +92,17 @@ class EncodedViews:
         rows = list(index)
         return EncodedViews(features=tuple(f[rows] for f in self.features), images=self.images[rows],
                             projection=self.projection[rows], centers=self.centers[rows], height=self.height,
-                            width=self.width, colours=None if self.colours is None else self.colours[rows])
+                            width=self.width, colours=None if self.colours is None else self.colours[rows],
+                            occlusion=None if self.occlusion is None else self.occlusion.select(rows))
 
     def with_colours(self, colours: Tensor) -> "EncodedViews":
         """These views with the reference colours looked up in ``colours`` [V, 3, Hc, Wc] (the same photos at a
         finer size; see ``colours``)."""
         return replace(self, colours=colours.to(self.images))
+
+    def with_occlusion(self, occlusion: Occlusion | None) -> "EncodedViews":
+        """These views with ``occlusion`` (its views in this order), or none."""
+        return replace(self, occlusion=occlusion)
 
     @staticmethod
     def join(parts: Sequence["EncodedViews"]) -> "EncodedViews":
