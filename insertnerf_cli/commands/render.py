@@ -42,11 +42,13 @@ def model_options(func: Callable[..., Any] | None = None, *, views_option: Calla
                      "agreeing neighbours are blended from them (within 0.3 dB)."),
         click.option("--sfm-depth/--no-sfm-depth", default=True, show_default=True,
                      help="Send most fine samples to the depth of the scene's structure-from-motion points seen "
-                     "at each pixel, and draw a pixel whose reference photos agree better at that depth than at "
-                     "the rendered one as their blend there (sharper on real photos; docs/model-card.md). The "
+                     "at each pixel, draw a pixel whose reference photos agree better at that depth than at "
+                     "the rendered one as their blend there, and leave a photo out of the samples its own points "
+                     "show hidden behind a nearer surface (sharper on real photos; docs/model-card.md). The "
                      "points come from the scene's "
                      "COLMAP model (poses from `insertnerf poses` have one); a scene without points gets them "
-                     "triangulated at its own poses first (COLMAP features, about 20-30 s for 30-120 photos)."),
+                     "triangulated at its own poses first (SIFT matched along the epipolar lines, about 40-90 s "
+                     "for 30-120 photos on 2 cores)."),
     ]
     for option in reversed(options):
         func = option(func)
