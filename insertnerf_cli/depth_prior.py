@@ -70,9 +70,14 @@ def view_prior(points: "ScenePoints", camera: Cameras, refs: Sequence[int],
         return None
     if pool is None or points.observed is None:
         return prior_depth(points.xyz[seen], camera)
-    placed = seen & (points.observers(list(pool)) >= WELL_TRACKED)
+    placed = seen & well_tracked(points, pool)
     layers = [prior_depth(points.xyz[keep], camera) for keep in (placed, seen & ~placed) if bool(keep.any())]
     return layers[0] if len(layers) == 1 else torch.where(torch.isnan(layers[0]), layers[1], layers[0])
+
+
+def well_tracked(points: "ScenePoints", pool: Sequence[int]) -> Tensor:
+    """[P] bool: the points that WELL_TRACKED of the views in ``pool`` observe (observations known)."""
+    return points.observers(list(pool)) >= WELL_TRACKED
 
 
 def prior_depth(points: Tensor, camera: Cameras, reach_fraction: float | None = None) -> Tensor:

@@ -1,7 +1,7 @@
 """Each reference view's nearer surfaces from its own SfM points: the maps model.occlusion tests samples against.
 
 A view's map splats and fills (depth_prior.prior_depth) the points it observes itself that WELL_TRACKED of the
-views a frame may draw from observe: a two-view track errs most in depth, and a point wrongly near would hide a
+views a frame may draw from observe (depth_prior.well_tracked, counted once per pool by the caller): a two-view track errs most in depth, and a point wrongly near would hide a
 surface the view sees (round 32's probe: room -0.8 dB at 10 views with two-view tracks in the maps, -0.4 without,
 before the near-parallax guard).
 """
@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Sequence
 import torch
 
 from .cameras import Cameras
-from .depth_prior import WELL_TRACKED, prior_depth
+from .depth_prior import prior_depth
 from .model.occlusion import NEAR_PARALLAX, Occlusion
 
 if TYPE_CHECKING:
@@ -24,15 +24,14 @@ if TYPE_CHECKING:
 MAP_SIZE = 128
 
 
-def reference_map(points: "ScenePoints", camera: Cameras, view: int, pool: Sequence[int]) -> torch.Tensor:
-    """[1, h, w] camera-z depth of the nearest surface ``view`` sees, for ``camera`` (1, that view's, at any size:
-    it is rescaled to MAP_SIZE): the points it observes that WELL_TRACKED of ``pool`` observe; inf where none."""
-    size = _map_size(camera)
-    small = camera.rescale(*size)
-    keep = (points.observers(list(pool)) >= WELL_TRACKED) & (points.observers([view]) >= 1)
+def reference_map(points: "ScenePoints", camera: Cameras, view: int, tracked: torch.Tensor) -> torch.Tensor:
+    """[1, h, w] camera-z depth of the nearest surface ``view`` sees, for ``camera`` (1, that view's at the map's
+    size, MAP_SIZE on the long side): the points it observes among the ``tracked`` ones ([P] bool,
+    depth_prior.well_tracked of the frame's usable views); inf where none."""
+    keep = tracked & (points.observers([view]) >= 1)
     if not bool(keep.any()):
-        return torch.full((1, *size), math.inf)
-    depth = prior_depth(points.xyz[keep], small).float()
+        return torch.full((1, camera.height, camera.width), math.inf)
+    depth = prior_depth(points.xyz[keep], camera).float()
     return torch.nan_to_num(depth, nan=math.inf)[None]
 
 
@@ -47,9 +46,3 @@ def occlusion(maps: Sequence[torch.Tensor], cameras: Cameras) -> Occlusion:
     """The Occlusion of V views from their reference_map()s (in ``cameras``' order)."""
     return Occlusion(torch.stack(list(maps)), near_angle(cameras))
 
-
-def _map_size(camera: Cameras) -> tuple[int, int]:
-    if max(camera.height, camera.width) <= MAP_SIZE:
-        return camera.height, camera.width
-    scale = MAP_SIZE / max(camera.height, camera.width)
-    return max(1, round(camera.height * scale)), max(1, round(camera.width * scale))

@@ -83,6 +83,7 @@ class ViewRenderer:
         self.occlusion = self.sfm_depth and occlusion and scene.points.observed is not None
         self.maps: dict[int, torch.Tensor] = {}  # view index -> its occlusion map, for the views of maps_pool
         self.maps_pool: tuple[int, ...] = ()
+        self.maps_tracked: torch.Tensor | None = None  # [P] bool: depth_prior.well_tracked of maps_pool
 
     def references(self, target_c2w: torch.Tensor, exclude: list[int], views: int | None = None) -> list[int]:
         from .views import nearest_views
@@ -147,18 +148,21 @@ class ViewRenderer:
     def _occlusion(self, refs: list[int], exclude: list[int]):
         """The Occlusion of ``refs`` (in this order; as _encoded orders them), their maps made from the points the
         views not in ``exclude`` track (occlusion_maps.reference_map), kept while ``exclude`` stays the same."""
-        from .occlusion_maps import occlusion, reference_map
+        from .depth_prior import well_tracked
+        from .occlusion_maps import MAP_SIZE, occlusion, reference_map
 
         left = set(exclude)
         pool = tuple(i for i in range(len(self.scene)) if i not in left)
         if pool != self.maps_pool:
             self.maps, self.maps_pool = {}, pool
-        cameras = self.scene.cameras.subset(refs)
-        for row, view in enumerate(refs):
+            self.maps_tracked = well_tracked(self.scene.points, pool)
+        size = self.scene.size_for(MAP_SIZE)
+        for view in refs:
             if view not in self.maps:
-                self.maps[view] = reference_map(self.scene.points, cameras.subset([row]), view, pool)
+                camera = self.scene.cameras.subset([view]).rescale(*size)
+                self.maps[view] = reference_map(self.scene.points, camera, view, self.maps_tracked)
         param = next(self.model.parameters())
-        return occlusion([self.maps[v] for v in refs], cameras).to(param)
+        return occlusion([self.maps[v] for v in refs], self.scene.cameras.subset(refs)).to(param)
 
     def _prior(self, camera: Cameras, refs: list[int], exclude: list[int]) -> torch.Tensor | None:
         """[H, W] the SfM depth prior of ``camera``, or None: depth_prior.view_prior of the frame's references

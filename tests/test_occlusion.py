@@ -9,6 +9,7 @@ import torch
 from insertnerf_cli.cameras import Cameras
 from insertnerf_cli.model.occlusion import MIN_VISIBLE, NEAR_PARALLAX, OCCLUSION_TOLERANCE, Occlusion, visible
 from insertnerf_cli.model.projection import Projected
+from insertnerf_cli.depth_prior import well_tracked
 from insertnerf_cli.occlusion_maps import MAP_SIZE, near_angle, reference_map
 from insertnerf_cli.scenes.points import ScenePoints
 
@@ -81,19 +82,17 @@ def test_a_views_map_holds_the_well_tracked_points_it_observes():
     # Point 0 at depth 2 is observed by views 0, 1, 2; point 1 at depth 5 by views 0 and 1 only (a two-view track).
     xyz = torch.tensor([[0.0, 0.0, 2.0], [0.3, 0.0, 5.0]], dtype=torch.float64)
     observed = (torch.tensor([0, 1]), torch.tensor([0, 1]), torch.tensor([0]))
-    depth = reference_map(ScenePoints(xyz, observed), _camera(0.0), 0, [0, 1, 2])
-    assert depth.shape == (1, 64, 64)  # under MAP_SIZE: the view's own size
+    points = ScenePoints(xyz, observed)
+    depth = reference_map(points, _camera(0.0), 0, well_tracked(points, [0, 1, 2]))
+    assert depth.shape == (1, 64, 64)  # the camera's size
     assert math.isclose(float(depth[0, 32, 32]), 2.0, rel_tol=1e-6)
     assert not bool((depth == 5.0).any())  # the two-view track is left out
-    far = reference_map(ScenePoints(xyz, observed), _camera(0.0), 0, [0, 1])  # then no point has 3 observers
+    far = reference_map(points, _camera(0.0), 0, well_tracked(points, [0, 1]))  # then no point has 3 observers
     assert bool(torch.isinf(far).all())
 
 
-def test_maps_are_made_at_their_size_and_near_angles_follow_the_lens():
+def test_near_angles_follow_the_lens():
     big = _camera(0.0, size=4 * MAP_SIZE)
-    xyz = torch.tensor([[0.0, 0.0, 2.0]], dtype=torch.float64)
-    observed = (torch.tensor([0]), torch.tensor([0]), torch.tensor([0]))
-    assert reference_map(ScenePoints(xyz, observed), big, 0, [0, 1, 2]).shape == (1, MAP_SIZE, MAP_SIZE)
     # focal = long side: a 53-degree lens; twice the focal length halves the angle.
     assert torch.allclose(near_angle(big), torch.tensor([NEAR_PARALLAX]))
     long_lens = _camera(0.0, size=4 * MAP_SIZE, focal=8 * MAP_SIZE)
@@ -122,7 +121,10 @@ def test_render_hands_the_generator_each_references_map_in_their_order(tmp_path,
     with_maps, without = handed
     assert without.occlusion is None
     pool = [i for i in range(len(scene)) if i != 4]
+    size = scene.size_for(MAP_SIZE)  # the maps are made at their size: MAP_SIZE on the long side, or the photos'
+    assert with_maps.occlusion.depth.shape[-2:] == size
     for row, view in enumerate(sorted(refs)):  # the encoding's order
-        own = reference_map(scene.points, scene.cameras.subset([view]), view, pool)
+        camera = scene.cameras.subset([view]).rescale(*size)
+        own = reference_map(scene.points, camera, view, well_tracked(scene.points, pool))
         torch.testing.assert_close(with_maps.occlusion.depth[row], own.to(with_maps.occlusion.depth))
     assert bool(torch.isfinite(with_maps.occlusion.depth).any())
