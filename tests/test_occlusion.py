@@ -56,18 +56,22 @@ def test_a_sample_too_few_views_pass_keeps_every_view():
     assert one.tolist() == [1.0, 1.0, 1.0]
 
 
-def test_the_choice_of_views_carries_visibility_and_unoccluded_applies_it():
+def test_the_choice_of_views_ranks_the_views_that_see_the_sample_and_unoccluded_applies_it():
     views, points = 3, 2
     cos = torch.tensor([0.9, 0.5, 0.99])[:, None, None].expand(views, 1, points)
     ray_diff = torch.cat([torch.zeros(views, 3, points), cos], dim=1)
     mask = torch.ones(views, 1, points)
-    vis = torch.tensor([1.0, 1.0, 0.0])[:, None, None].expand(views, 1, points)
+    vis = torch.tensor([[1.0, 1.0], [1.0, 1.0], [0.0, 1.0]])[:, None]  # view 2 hidden from sample 0 only
     seen = Projected((), torch.rand(views, 3, points), mask, ray_diff, None, vis).nearest_in_angle(2)
-    # The two nearest in angle by the mask (views 2 and 0), whatever visibility says; then view 2 drops out.
-    assert torch.allclose(seen.cos[:, 0, 0], torch.tensor([0.99, 0.9]))
-    assert seen.mask[:, 0, 0].tolist() == [1.0, 1.0]
-    assert seen.unoccluded().mask[:, 0, 0].tolist() == [0.0, 1.0]
+    # Sample 0: view 2, nearest in angle, is hidden and gives its place to view 1; sample 1 keeps views 2 and 0.
+    assert torch.allclose(seen.cos[:, 0, 0], torch.tensor([0.9, 0.5]))
+    assert torch.allclose(seen.cos[:, 0, 1], torch.tensor([0.99, 0.9]))
+    assert seen.mask.flatten().tolist() == [1.0] * 4
+    assert seen.unoccluded().mask.flatten().tolist() == [1.0] * 4
     assert seen.unoccluded().visible is None
+    # Without an Occlusion the plain mask ranks: view 2 stays first for both samples.
+    plain = Projected((), torch.rand(views, 3, points), mask, ray_diff).nearest_in_angle(2)
+    assert torch.allclose(plain.cos[:, 0], torch.tensor([[0.99, 0.99], [0.9, 0.9]]))
 
 
 def _camera(x: float, size: int = 64, focal: float | None = None) -> Cameras:

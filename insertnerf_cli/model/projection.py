@@ -35,7 +35,7 @@ class Projected:
             where there are none; the output colour blends these (blend_colours).
         visible: [V, 1, P] ``mask`` less the views whose SfM points put a nearer surface in front of the sample
             (occlusion.visible), or None where the references carry no Occlusion. The choice of the views
-            nearest in angle still reads ``mask`` (as the probes measured it); ``unoccluded`` then applies it.
+            nearest in angle ranks the views that pass it first; ``unoccluded`` then makes it the mask.
     """
 
     features: tuple[Tensor, ...]
@@ -57,11 +57,15 @@ class Projected:
 
     def nearest_in_angle(self, views: int) -> Projected:
         """Per sample, only the ``views`` views whose rays are closest in angle to the query ray: [K, C, P]
-        tensors (K = views), valid views first. With V <= K views this is ``self`` unchanged."""
+        tensors (K = views), the views that see the sample first (``visible`` where there is one, else ``mask``).
+        With V <= K views this is ``self`` unchanged."""
         if self.mask.shape[0] <= views:
             return self
+        # A view a nearer surface hides gives its place to the next one in angle, so that a sample keeps K views
+        # that see it (round 33: mold_gold_cape +0.05 dB at 16 views with both generators, room +0.02 / 0).
+        seen = self.mask if self.visible is None else self.visible
         # The largest cosines are the smallest angles, without ray_angle's asin (a quarter of this call's time).
-        cos = torch.where(self.mask > 0, self.cos, torch.full_like(self.mask, -2.0))  # [V, 1, P]; unseen: last
+        cos = torch.where(seen > 0, self.cos, torch.full_like(seen, -2.0))  # [V, 1, P]; unseen: last
         # topk along a contiguous last axis: along the view axis of [V, 1, P] it measured 10x slower on CPU.
         index = cos[:, 0].T.contiguous().topk(views, dim=1).indices.T[:, None]  # [K, 1, P]
 
