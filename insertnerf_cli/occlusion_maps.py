@@ -1,9 +1,9 @@
 """Each reference view's nearer surfaces from its own SfM points: the maps model.occlusion tests samples against.
 
 A view's map splats and fills (depth_prior.prior_depth) the points it observes itself that WELL_TRACKED of the
-views a frame may draw from observe (depth_prior.well_tracked, counted once per pool by the caller): a two-view track errs most in depth, and a point wrongly near would hide a
-surface the view sees (round 32's probe: room -0.8 dB at 10 views with two-view tracks in the maps, -0.4 without,
-before the near-parallax guard).
+views a frame may draw from observe (depth_prior.well_tracked, counted once per pool by the caller): a two-view
+track errs most in depth, and a point wrongly near would hide a surface the view sees (round 32's probe: room
+-0.8 dB at 10 views with two-view tracks in the maps, -0.4 without, before the near-parallax guard).
 """
 from __future__ import annotations
 
