@@ -56,22 +56,24 @@ WELL_TRACKED = 3
 
 
 def view_prior(points: "ScenePoints", camera: Cameras, refs: Sequence[int],
-               pool: Sequence[int] | None = None) -> Tensor | None:
+               pool: Sequence[int] | None = None, reach_fraction: float | None = None) -> Tensor | None:
     """[H, W] the prior of ``camera`` (1) from the points that two of its references ``refs`` (nearest first)
     observe and one of the PRIOR_VIEWS nearest does, or None when no point is left: points the frame's references
     would triangulate themselves, which they see, as the generator matching them does. Observations of any other
     view (eval's held-out photo, fine-tuning's target, a far photo that sees round an occluder) lend nothing; a
     sparse cloud would otherwise paint the far side of an object into the splats (rounds 19 and 25).
     With ``pool`` (every view the frame may draw its references from), the points fewer than WELL_TRACKED of those
-    observe only fill the pixels the others leave without a prior."""
+    observe only fill the pixels the others leave without a prior. ``reach_fraction``: as prior_depth's (0: the
+    points' own splats alone)."""
     refs = list(refs)
     seen = points.seen_mask(refs, near=refs[:PRIOR_VIEWS])
     if not bool(seen.any()):
         return None
     if pool is None or points.observed is None:
-        return prior_depth(points.xyz[seen], camera)
+        return prior_depth(points.xyz[seen], camera, reach_fraction)
     placed = seen & well_tracked(points, pool)
-    layers = [prior_depth(points.xyz[keep], camera) for keep in (placed, seen & ~placed) if bool(keep.any())]
+    layers = [prior_depth(points.xyz[keep], camera, reach_fraction) for keep in (placed, seen & ~placed)
+              if bool(keep.any())]
     return layers[0] if len(layers) == 1 else torch.where(torch.isnan(layers[0]), layers[1], layers[0])
 
 

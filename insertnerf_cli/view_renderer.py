@@ -119,9 +119,9 @@ class ViewRenderer:
     def render(self, camera: Cameras, near: float, far: float, exclude: list[int], views: int | None = None):
         """(ImageOutput of ``camera`` (1), the reference indices used) from its ``views`` (default: the
         renderer's count) nearest references; never uses an index in ``exclude``. The samples lie within
-        ``near`` and far_bound(): ``far``, raised where the frame's SfM points lie past it. Pixels whose
-        references agree better at the SfM depth than at the rendered one take their blend there
-        (prior_blend)."""
+        ``near`` and far_bound(): ``far``, raised where the frame's SfM points lie past it. The references'
+        blend at the SfM depth is mixed into the pixels a point lands on, by how well they agree there against
+        the rendered depth, and taken where a filled pixel's agree much better (prior_blend)."""
         from .depth_prior import covering_far
         from .render import render_image
 
@@ -134,7 +134,8 @@ class ViewRenderer:
         if prior is not None and self.prior_blend:
             from .prior_blend import blend_at_prior
 
-            frame = blend_at_prior(frame, encoded, camera, prior, far)
+            splats = self._prior(camera, refs, exclude, reach_fraction=0.0)  # the points' own discs: not None here
+            frame = blend_at_prior(frame, encoded, camera, prior, far, torch.isfinite(splats))
         return frame, refs
 
     def far_bound(self, camera: Cameras, far: float, exclude: list[int], views: int | None = None) -> float:
@@ -164,13 +165,15 @@ class ViewRenderer:
         param = next(self.model.parameters())
         return occlusion([self.maps[v] for v in refs], self.scene.cameras.subset(refs)).to(param)
 
-    def _prior(self, camera: Cameras, refs: list[int], exclude: list[int]) -> torch.Tensor | None:
+    def _prior(self, camera: Cameras, refs: list[int], exclude: list[int],
+               reach_fraction: float | None = None) -> torch.Tensor | None:
         """[H, W] the SfM depth prior of ``camera``, or None: depth_prior.view_prior of the frame's references
         ``refs`` (nearest first), its tracks counted over the views not in ``exclude`` (so eval's held-out photo
-        lends no observation)."""
+        lends no observation), its splats carried ``reach_fraction`` of the long side (None: the default)."""
         if not self.sfm_depth:
             return None
         from .depth_prior import view_prior
 
         left = set(exclude)
-        return view_prior(self.scene.points, camera, refs, [i for i in range(len(self.scene)) if i not in left])
+        return view_prior(self.scene.points, camera, refs, [i for i in range(len(self.scene)) if i not in left],
+                          reach_fraction)

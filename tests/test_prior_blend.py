@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
-from insertnerf_cli.prior_blend import blend_at_prior
+from insertnerf_cli.prior_blend import blend, blend_at_prior, mix_share, reference_colours
 from insertnerf_cli.rays import rays_for_image
 from insertnerf_cli.render import ImageOutput
 from model_fixtures import FAR, TINY, orbit_cameras, sphere_hit, sphere_images
@@ -99,3 +99,43 @@ def test_a_prior_point_fewer_than_two_references_see_is_never_taken():
     assert (out.depth == depth).float().mean() > 0.1  # the patch around it is taken
     assert torch.equal(out.rgb[size // 2, size // 2], wrong.rgb[size // 2, size // 2])
     assert out.depth[size // 2, size // 2] == wrong.depth[size // 2, size // 2]
+
+
+def test_the_mix_weighs_each_depth_inversely_to_its_variance_squared():
+    at_prior = torch.tensor([1.0, 1.0, 2.0, 0.0, 0.0, 3.0])
+    at_render = torch.tensor([1.0, 2.0, 1.0, 0.0, 5.0, 0.0])
+    expected = torch.tensor([0.5, 0.8, 0.2, 0.0, 1.0, 0.0])  # both agree perfectly: the frame's colour
+    torch.testing.assert_close(mix_share(at_prior, at_render), expected)
+
+
+def test_on_the_splats_a_true_prior_pulls_a_wrong_frame_toward_the_photo(scene):
+    encoded, camera, photo, depth = scene
+    grey = torch.full_like(photo, 0.5)
+    wrong = frame(grey, torch.nan_to_num(depth * 1.3, nan=4.0))
+    on_sphere = torch.isfinite(depth)
+    out = blend_at_prior(wrong, encoded, camera, depth, FAR, splatted=on_sphere)
+    error, before = ((out.rgb - photo).abs()[on_sphere], (grey - photo).abs()[on_sphere])
+    assert error.mean() < 0.3 * before.mean()
+    assert ((out.depth == depth) & on_sphere).sum() >= 0.7 * on_sphere.sum()  # the blend's share passes one half
+    assert torch.equal(out.rgb[~on_sphere], grey[~on_sphere])
+
+
+def test_on_the_splats_a_wrong_prior_barely_moves_a_right_frame(scene):
+    encoded, camera, photo, depth = scene
+    right = frame(photo, torch.nan_to_num(depth, nan=4.0))
+    on_sphere = torch.isfinite(depth)
+    mixed = blend_at_prior(right, encoded, camera, depth * 1.3, FAR, splatted=on_sphere)
+    # What the wrong prior's blend alone paints: the frame's colour moves a small share of the way there.
+    one = torch.ones(1)
+    rays = rays_for_image(camera.to(dtype=encoded.images.dtype), one, one)
+    blended = blend(reference_colours(encoded, rays, (depth * 1.3).reshape(-1))).reshape(photo.shape)
+    assert (mixed.rgb - photo).abs()[on_sphere].mean() < 0.25 * (blended - photo).abs()[on_sphere].mean()
+    assert (mixed.depth == depth * 1.3).float()[on_sphere].mean() < 0.1  # 0.04: the silhouette's pixels
+
+
+def test_pixels_no_point_lands_on_keep_the_all_or_nothing_rule(scene):
+    encoded, camera, photo, depth = scene
+    wrong = frame(torch.full_like(photo, 0.5), torch.nan_to_num(depth * 1.3, nan=4.0))
+    plain = blend_at_prior(wrong, encoded, camera, depth, FAR)
+    none = blend_at_prior(wrong, encoded, camera, depth, FAR, splatted=torch.zeros_like(depth, dtype=torch.bool))
+    assert torch.equal(plain.rgb, none.rgb) and torch.equal(plain.depth, none.depth)
