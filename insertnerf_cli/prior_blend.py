@@ -9,9 +9,10 @@ references' colour variance over a small patch, as plane-sweep stereo matches: o
 
 Round 34: where a point of the prior itself lands on the pixel (a splat, not a fill), its two candidates are mixed
 rather than one taken, each weighted inversely to its patch variance squared. Neither test is sure on the gold's
-glints or a shadow's edge, and the mean of two half-right colours errs less than either (fast generator at 10 views:
-mold_gold_cape +0.19 dB, flower +0.48, room +0.11). A filled pixel still takes the blend only past MARGIN: the fill
-carries a point's depth across edges it cannot see (mixed there too, room lost 0.1 dB more at 10 views than at 3).
+glints or a shadow's edge, and the mean of two half-right colours errs less than either (eval, fast generator at 10
+views: mold_gold_cape +0.14 dB, flower +0.44, room +0.11). A filled pixel still takes the blend only past MARGIN:
+the fill carries a point's depth across edges it cannot see (mixed there too, room's 3 views gained 0.30 dB and its
+10 views 0.12, so more views helped it less; docs/model-card.md round 34).
 """
 from __future__ import annotations
 
@@ -41,8 +42,12 @@ WINDOW_FRACTION = 7 / 256
 # rendered depth.
 MARGIN = 1.5
 # A splatted pixel's blend weighs (v_render / v_prior) ** MIX_POWER against the frame's colour (v: patch variance).
-# Power 1 scored as 2 on mold_gold_cape (18.49 against 18.48 dB, mixed everywhere) and lost room more at 3 views.
+# Power 1 scored as 2 on mold_gold_cape (18.49 against 18.48 dB, mixed on every pixel) and room 0.08 dB less at 10.
 MIX_POWER = 2.0
+# The pixels mixed: a prior point's own splat, carried this fraction of the long side into the pixels around it
+# (depth_prior.prior_depth's reach_fraction). 2/256: mold_gold_cape +0.08 dB at 10 views, room +0.06 at 3 views and
+# nothing at 10 (round 34).
+MIX_REACH_FRACTION = 0.0
 # The variance of a point fewer than two references see: above any of colours in [0, 1] (3 channels x 1/4), so
 # such a point never wins, and a patch holding a few still can.
 UNSEEN_COST = 1.0

@@ -132,9 +132,9 @@ class ViewRenderer:
             encoded = encoded.with_occlusion(self._occlusion(sorted(refs), exclude))
         frame = render_image(self.model, encoded, camera, near, far, self.chunk, self.shortcuts, prior)
         if prior is not None and self.prior_blend:
-            from .prior_blend import blend_at_prior
+            from .prior_blend import MIX_REACH_FRACTION, blend_at_prior
 
-            splats = self._prior(camera, refs, exclude, reach_fraction=0.0)  # the points' own discs: not None here
+            splats = self._prior(camera, refs, exclude, MIX_REACH_FRACTION)  # not None: the same points as prior
             frame = blend_at_prior(frame, encoded, camera, prior, far, torch.isfinite(splats))
         return frame, refs
 
