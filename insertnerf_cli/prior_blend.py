@@ -125,8 +125,9 @@ def blend_at_prior(frame: "ImageOutput", encoded: "EncodedViews", camera: Camera
         check_shape("splatted", splatted, (height, width))
         mixed = usable & splatted.to(usable.device).reshape(-1)
         share = torch.where(mixed, mix_share(agree_prior, agree_render), share)
-    blended = torch.cat(colours).to(frame.rgb)
-    rgb = torch.lerp(frame.rgb.reshape(-1, 3), blended, share.to(frame.rgb)[:, None]).clamp(0.0, 1.0)
+    own, blended, weight = frame.rgb.reshape(-1, 3), torch.cat(colours).to(frame.rgb), share.to(frame.rgb)[:, None]
+    # where(), not lerp() alone: a pixel the blend does not enter keeps its colour exactly, whatever the blend holds.
+    rgb = torch.where(weight > 0, torch.lerp(own, blended, weight), own).clamp(0.0, 1.0)
     depth = torch.where(share > 0.5, prior_flat.to(frame.depth), frame.depth.reshape(-1))
     return ImageOutput(rgb=rgb.reshape(height, width, 3), depth=depth.reshape(height, width), opacity=frame.opacity)
 
@@ -137,4 +138,5 @@ def mix_share(at_prior: Tensor, at_render: Tensor) -> Tensor:
     colour) where both are 0."""
     render_term, prior_term = at_render ** MIX_POWER, at_prior ** MIX_POWER
     total = render_term + prior_term
-    return torch.where(total > 0, render_term / total.clamp(min=torch.finfo(total.dtype).tiny), torch.zeros_like(total))
+    share = render_term / total.clamp(min=torch.finfo(total.dtype).tiny)
+    return torch.where(total > 0, share, torch.zeros_like(total))
