@@ -56,25 +56,34 @@ WELL_TRACKED = 3
 
 
 def view_prior(points: "ScenePoints", camera: Cameras, refs: Sequence[int],
-               pool: Sequence[int] | None = None, reach_fraction: float | None = None) -> Tensor | None:
+               pool: Sequence[int] | None = None) -> Tensor | None:
     """[H, W] the prior of ``camera`` (1) from the points that two of its references ``refs`` (nearest first)
     observe and one of the PRIOR_VIEWS nearest does, or None when no point is left: points the frame's references
     would triangulate themselves, which they see, as the generator matching them does. Observations of any other
     view (eval's held-out photo, fine-tuning's target, a far photo that sees round an occluder) lend nothing; a
     sparse cloud would otherwise paint the far side of an object into the splats (rounds 19 and 25).
     With ``pool`` (every view the frame may draw its references from), the points fewer than WELL_TRACKED of those
-    observe only fill the pixels the others leave without a prior. ``reach_fraction``: as prior_depth's (0: the
-    points' own splats alone)."""
+    observe only fill the pixels the others leave without a prior."""
+    found = view_prior_splats(points, camera, refs, pool)
+    return None if found is None else found[0]
+
+
+def view_prior_splats(points: "ScenePoints", camera: Cameras, refs: Sequence[int],
+                      pool: Sequence[int] | None = None) -> tuple[Tensor, Tensor] | None:
+    """(view_prior's [H, W] depth, [H, W] bool: the pixels a point's own splat covers, the rest of the prior being
+    fill), or None as view_prior."""
     refs = list(refs)
     seen = points.seen_mask(refs, near=refs[:PRIOR_VIEWS])
     if not bool(seen.any()):
         return None
     if pool is None or points.observed is None:
-        return prior_depth(points.xyz[seen], camera, reach_fraction)
+        return prior_splats(points.xyz[seen], camera)
     placed = seen & well_tracked(points, pool)
-    layers = [prior_depth(points.xyz[keep], camera, reach_fraction) for keep in (placed, seen & ~placed)
-              if bool(keep.any())]
-    return layers[0] if len(layers) == 1 else torch.where(torch.isnan(layers[0]), layers[1], layers[0])
+    layers = [prior_splats(points.xyz[keep], camera) for keep in (placed, seen & ~placed) if bool(keep.any())]
+    if len(layers) == 1:
+        return layers[0]
+    (first, first_splats), (second, second_splats) = layers
+    return torch.where(torch.isnan(first), second, first), first_splats | second_splats
 
 
 def well_tracked(points: "ScenePoints", pool: Sequence[int]) -> Tensor:
@@ -86,6 +95,11 @@ def prior_depth(points: Tensor, camera: Cameras, reach_fraction: float | None = 
     """[H, W] camera-z depth of the nearest point splatted at each pixel of ``camera`` (1 camera), carried into
     empty pixels from the nearest splat within reach (``reach_fraction`` of the long side, default
     REACH_FRACTION; 0 carries none); NaN elsewhere. ``points`` [P, 3] are world positions."""
+    return prior_splats(points, camera, reach_fraction)[0]
+
+
+def prior_splats(points: Tensor, camera: Cameras, reach_fraction: float | None = None) -> tuple[Tensor, Tensor]:
+    """(prior_depth [H, W], [H, W] bool: the pixels a point's own splat covers, before the fill)."""
     check_shape("points", points, (None, 3))
     if len(camera) != 1:
         raise ValueError(f"prior_depth projects into one camera, got {len(camera)}")
@@ -96,7 +110,7 @@ def prior_depth(points: Tensor, camera: Cameras, reach_fraction: float | None = 
     uv, z = camera.to(device="cpu", dtype=torch.float64).project(points.to(device="cpu", dtype=torch.float64))
     front = z[0] > 1e-9  # uv is meaningless behind the camera
     depth = _splat(uv[0][front], z[0][front], height, width, splat)
-    return _fill(depth, reach).to(camera.K.device)
+    return _fill(depth, reach).to(camera.K.device), torch.isfinite(depth).to(camera.K.device)
 
 
 def _splat(uv: Tensor, z: Tensor, height: int, width: int, radius: int) -> Tensor:

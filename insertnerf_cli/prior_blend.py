@@ -12,7 +12,8 @@ rather than one taken, each weighted inversely to its patch variance squared. Ne
 glints or a shadow's edge, and the mean of two half-right colours errs less than either (eval, fast generator at 10
 views: mold_gold_cape +0.14 dB, flower +0.44, room +0.11). A filled pixel still takes the blend only past MARGIN:
 the fill carries a point's depth across edges it cannot see (mixed there too, room's 3 views gained 0.30 dB and its
-10 views 0.12, so more views helped it less; docs/model-card.md round 34).
+10 views 0.12, so more views helped it less; docs/model-card.md round 34). Mixed 2 px past each splat as well:
+mold_gold_cape +0.08 dB at 10 views, room +0.06 at 3 views and nothing at 10.
 """
 from __future__ import annotations
 
@@ -44,10 +45,6 @@ MARGIN = 1.5
 # A splatted pixel's blend weighs (v_render / v_prior) ** MIX_POWER against the frame's colour (v: patch variance).
 # Power 1 scored as 2 on mold_gold_cape (18.49 against 18.48 dB, mixed on every pixel) and room 0.08 dB less at 10.
 MIX_POWER = 2.0
-# The pixels mixed: a prior point's own splat, carried this fraction of the long side into the pixels around it
-# (depth_prior.prior_depth's reach_fraction). 2/256: mold_gold_cape +0.08 dB at 10 views, room +0.06 at 3 views and
-# nothing at 10 (round 34).
-MIX_REACH_FRACTION = 0.0
 # The variance of a point fewer than two references see: above any of colours in [0, 1] (3 channels x 1/4), so
 # such a point never wins, and a patch holding a few still can.
 UNSEEN_COST = 1.0

@@ -126,16 +126,15 @@ class ViewRenderer:
         from .render import render_image
 
         refs = self.references(camera.c2w[0], exclude, views)
-        prior = self._prior(camera, refs, exclude)
+        prior, splatted = self._prior_splats(camera, refs, exclude) or (None, None)
         encoded, far = self._encoded(refs), covering_far(far, prior)
         if self.occlusion:
             encoded = encoded.with_occlusion(self._occlusion(sorted(refs), exclude))
         frame = render_image(self.model, encoded, camera, near, far, self.chunk, self.shortcuts, prior)
         if prior is not None and self.prior_blend:
-            from .prior_blend import MIX_REACH_FRACTION, blend_at_prior
+            from .prior_blend import blend_at_prior
 
-            splats = self._prior(camera, refs, exclude, MIX_REACH_FRACTION)  # not None: the same points as prior
-            frame = blend_at_prior(frame, encoded, camera, prior, far, torch.isfinite(splats))
+            frame = blend_at_prior(frame, encoded, camera, prior, far, splatted)
         return frame, refs
 
     def far_bound(self, camera: Cameras, far: float, exclude: list[int], views: int | None = None) -> float:
@@ -165,15 +164,20 @@ class ViewRenderer:
         param = next(self.model.parameters())
         return occlusion([self.maps[v] for v in refs], self.scene.cameras.subset(refs)).to(param)
 
-    def _prior(self, camera: Cameras, refs: list[int], exclude: list[int],
-               reach_fraction: float | None = None) -> torch.Tensor | None:
-        """[H, W] the SfM depth prior of ``camera``, or None: depth_prior.view_prior of the frame's references
-        ``refs`` (nearest first), its tracks counted over the views not in ``exclude`` (so eval's held-out photo
-        lends no observation), its splats carried ``reach_fraction`` of the long side (None: the default)."""
+    def _prior(self, camera: Cameras, refs: list[int], exclude: list[int]) -> torch.Tensor | None:
+        """[H, W] the SfM depth prior of ``camera``, or None: _prior_splats' depth."""
+        found = self._prior_splats(camera, refs, exclude)
+        return None if found is None else found[0]
+
+    def _prior_splats(self, camera: Cameras, refs: list[int],
+                      exclude: list[int]) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """([H, W] the SfM depth prior of ``camera``, [H, W] bool its pixels a point's own splat covers), or None:
+        depth_prior.view_prior_splats of the frame's references ``refs`` (nearest first), its tracks counted over
+        the views not in ``exclude`` (so eval's held-out photo lends no observation)."""
         if not self.sfm_depth:
             return None
-        from .depth_prior import view_prior
+        from .depth_prior import view_prior_splats
 
         left = set(exclude)
-        return view_prior(self.scene.points, camera, refs, [i for i in range(len(self.scene)) if i not in left],
-                          reach_fraction)
+        return view_prior_splats(self.scene.points, camera, refs,
+                                 [i for i in range(len(self.scene)) if i not in left])

@@ -10,7 +10,7 @@ import torch
 
 from insertnerf_cli.cameras import Cameras, intrinsics
 from insertnerf_cli.depth_prior import (PRIOR_FAR_MARGIN, PRIOR_VIEWS, covering_far, guide_weights, prior_depth,
-                                        view_prior)
+                                        view_prior, view_prior_splats)
 from insertnerf_cli.sampling import RaySamples, importance_samples
 from insertnerf_cli.scenes import load_scene, normalize_scene
 from insertnerf_cli.scenes.points import ScenePoints
@@ -163,6 +163,19 @@ def test_two_view_tracks_fill_only_where_better_placed_points_leave_the_prior_em
     assert float(filled[H // 2, 2]) == pytest.approx(2.0)
     # A held-out view outside the pool lends no observer: the far plane is then a two-view track too.
     torch.testing.assert_close(view_prior(points, camera_at_origin(), [0, 1], pool=[0, 1]), flat, equal_nan=True)
+
+
+def test_the_splats_of_a_frames_prior_are_the_pixels_its_points_cover_before_the_fill() -> None:
+    # Two points, one per layer (a well-tracked one on the left, a two-view track on the right): each covers its
+    # disc, and the fill carries their depths beyond it.
+    xyz = torch.tensor([[-0.5, 0.0, 2.0], [0.5, 0.0, 2.0]])
+    observed = (torch.tensor([0, 1]), torch.tensor([0, 1]), torch.tensor([0]))
+    points = ScenePoints(xyz, observed)
+    depth, splatted = view_prior_splats(points, camera_at_origin(), [0, 1], pool=[0, 1, 2])
+    torch.testing.assert_close(depth, view_prior(points, camera_at_origin(), [0, 1], pool=[0, 1, 2]), equal_nan=True)
+    bare = [prior_depth(xyz[i:i + 1], camera_at_origin(), 0.0) for i in range(2)]
+    assert torch.equal(splatted, torch.isfinite(bare[0]) | torch.isfinite(bare[1]))
+    assert 0 < int(splatted.sum()) < int(torch.isfinite(depth).sum())
 
 
 def test_a_colmap_scene_carries_its_points_into_normalised_units(tmp_path: Path) -> None:
