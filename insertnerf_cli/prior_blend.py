@@ -14,6 +14,9 @@ views: mold_gold_cape +0.14 dB, flower +0.44, room +0.11). A filled pixel still 
 the fill carries a point's depth across edges it cannot see (mixed there too, room's 3 views gained 0.30 dB and its
 10 views 0.12, so more views helped it less; docs/model-card.md round 34). Mixed 2 px past each splat as well:
 mold_gold_cape +0.08 dB at 10 views, room +0.06 at 3 views and nothing at 10.
+
+Round 35: the mix fades out over FEATHER_FRACTION instead of stopping at the disc's rim, which a 512-px render
+showed as round spots.
 """
 from __future__ import annotations
 
@@ -48,6 +51,10 @@ MIX_POWER = 2.0
 # The variance of a point fewer than two references see: above any of colours in [0, 1] (3 channels x 1/4), so
 # such a point never wins, and a patch holding a few still can.
 UNSEEN_COST = 1.0
+# The window over which a splatted pixel's mix fades into the rule around it, as a fraction of the long side (5 px
+# at 256: 2 px past a 2-px disc). Inside it the mix's part is the window's share covered by discs, so an isolated
+# disc has no rim: a hard edge at the disc drew round gold spots into mold_gold_cape's opening at 512 px (round 35).
+FEATHER_FRACTION = 5 / 256
 # Pixels reprojected per pass: [V, 3 + 3 + 4 + 1, P] floats (colours, finer colours, ray_diff, mask) for 10 views
 # stay near 30 MB.
 PIXELS_PER_PASS = 65536
@@ -77,10 +84,10 @@ def blend(seen: Projected) -> Tensor:
     return (seen.blend_colours * weights).sum(dim=0).T
 
 
-def patch_mean(cost: Tensor, size: tuple[int, int]) -> Tensor:
-    """[R] per-pixel ``cost`` [R] averaged over a square patch of WINDOW_FRACTION of the long side (odd, centred;
+def patch_mean(cost: Tensor, size: tuple[int, int], fraction: float = WINDOW_FRACTION) -> Tensor:
+    """[R] per-pixel ``cost`` [R] averaged over a square patch of ``fraction`` of the long side (odd, centred;
     the pixels inside the frame only)."""
-    window = max(1, round(WINDOW_FRACTION * max(size))) | 1
+    window = max(1, round(fraction * max(size))) | 1
     return F.avg_pool2d(cost.reshape(1, 1, *size), window, stride=1, padding=window // 2,
                         count_include_pad=False).reshape(-1)
 
@@ -88,10 +95,10 @@ def patch_mean(cost: Tensor, size: tuple[int, int]) -> Tensor:
 def blend_at_prior(frame: "ImageOutput", encoded: "EncodedViews", camera: Cameras, prior: Tensor,
                    far: float, splatted: Tensor | None = None) -> "ImageOutput":
     """``frame`` with its references' blend at the ``prior`` depth [H, W] (NaN: none) given where they agree there:
-    on the pixels ``splatted`` [H, W] (bool: a prior point's own disc; None: none) the blend's share of the colour
-    is mix_share of the two variances, elsewhere each pixel whose references agree MARGIN times better at the prior
-    than at the frame's own depth takes the blend outright. Depth: the prior where the blend's share passes one
-    half; opacity kept. A prior past ``far``, the bound the frame was rendered within, is left out: depth files
+    each pixel whose references agree MARGIN times better at the prior than at the frame's own depth takes the
+    blend outright; near the pixels ``splatted`` [H, W] (bool: a prior point's own disc; None: none) that share
+    moves to mix_share of the two variances by the part of a FEATHER_FRACTION window the discs cover. Depth: the
+    prior where the blend's share passes one half; opacity kept. A prior past ``far``, the bound the frame was rendered within, is left out: depth files
     sized for it hold every pixel."""
     from .render import ImageOutput
 
@@ -120,8 +127,8 @@ def blend_at_prior(frame: "ImageOutput", encoded: "EncodedViews", camera: Camera
     share = (usable & (agree_prior * MARGIN < agree_render)).to(param)  # [R] the blend's share of the colour
     if splatted is not None:
         check_shape("splatted", splatted, (height, width))
-        mixed = usable & splatted.to(usable.device).reshape(-1)
-        share = torch.where(mixed, mix_share(agree_prior, agree_render), share)
+        cover = patch_mean(splatted.to(param).reshape(-1), size, FEATHER_FRACTION)  # [R] 0 far from discs
+        share = torch.where(usable, torch.lerp(share, mix_share(agree_prior, agree_render), cover), share)
     own, blended, weight = frame.rgb.reshape(-1, 3), torch.cat(colours).to(frame.rgb), share.to(frame.rgb)[:, None]
     # where(), not lerp() alone: a pixel the blend does not enter keeps its colour exactly, whatever the blend holds.
     rgb = torch.where(weight > 0, torch.lerp(own, blended, weight), own).clamp(0.0, 1.0)

@@ -139,3 +139,28 @@ def test_pixels_no_point_lands_on_keep_the_all_or_nothing_rule(scene):
     plain = blend_at_prior(wrong, encoded, camera, depth, FAR)
     none = blend_at_prior(wrong, encoded, camera, depth, FAR, splatted=torch.zeros_like(depth, dtype=torch.bool))
     assert torch.equal(plain.rgb, none.rgb) and torch.equal(plain.depth, none.depth)
+
+
+def test_a_lone_disc_mixes_in_by_the_part_of_the_window_it_covers_and_has_no_rim():
+    # At 128 px the feather window is 3 px. A frame at the true depth agrees there exactly as the prior does: the
+    # all-or-nothing rule keeps its (grey) colour and the mix's share is one half.
+    size = 128
+    encoded = encoded_ring(size)
+    camera = orbit_cameras(1, size, phase=0.3)
+    depth = sphere_depth(camera)
+    grey = frame(torch.full((size, size, 3), 0.5), torch.nan_to_num(depth, nan=4.0))
+    row = col = size // 2
+    lone = torch.zeros_like(depth, dtype=torch.bool)
+    lone[row, col] = True
+    window = torch.zeros_like(lone)
+    window[row - 1:row + 2, col - 1:col + 2] = True
+    block = torch.zeros_like(lone)  # covers each window pixel's own window whole
+    block[row - 2:row + 3, col - 2:col + 3] = True
+    plain, one, full = (blend_at_prior(grey, encoded, camera, depth, FAR, splatted=mask).rgb
+                        for mask in (torch.zeros_like(lone), lone, block))
+    assert torch.equal(plain, grey.rgb)
+    moved = full[window] - plain[window]  # [9, 3] half way to the blend
+    assert moved.abs().amax(dim=-1).min() > 0.02
+    # Every pixel of the lone disc's window sees it cover 1/9 of its own window; none outside moves.
+    torch.testing.assert_close(one[window] - plain[window], moved / 9, rtol=1e-4, atol=1e-6)
+    assert torch.equal(one[~window], plain[~window])
