@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
-from insertnerf_cli.prior_blend import blend, blend_at_prior, mix_share, reference_colours
+from insertnerf_cli.prior_blend import (blend, blend_at_prior, feathered, mix_share, reference_colours,
+                                        smooth_fill)
 from insertnerf_cli.rays import rays_for_image
 from insertnerf_cli.render import ImageOutput
 from model_fixtures import FAR, TINY, orbit_cameras, sphere_hit, sphere_images
@@ -141,26 +142,47 @@ def test_pixels_no_point_lands_on_keep_the_all_or_nothing_rule(scene):
     assert torch.equal(plain.rgb, none.rgb) and torch.equal(plain.depth, none.depth)
 
 
-def test_a_lone_disc_mixes_in_by_the_part_of_the_window_it_covers_and_has_no_rim():
-    # At 128 px the feather window is 3 px. A frame at the true depth agrees there exactly as the prior does: the
-    # all-or-nothing rule keeps its (grey) colour and the mix's share is one half.
-    size = 128
-    encoded = encoded_ring(size)
-    camera = orbit_cameras(1, size, phase=0.3)
-    depth = sphere_depth(camera)
-    grey = frame(torch.full((size, size, 3), 0.5), torch.nan_to_num(depth, nan=4.0))
-    row = col = size // 2
-    lone = torch.zeros_like(depth, dtype=torch.bool)
-    lone[row, col] = True
-    window = torch.zeros_like(lone)
-    window[row - 1:row + 2, col - 1:col + 2] = True
-    block = torch.zeros_like(lone)  # covers each window pixel's own window whole
-    block[row - 2:row + 3, col - 2:col + 3] = True
-    plain, one, full = (blend_at_prior(grey, encoded, camera, depth, FAR, splatted=mask).rgb
-                        for mask in (torch.zeros_like(lone), lone, block))
-    assert torch.equal(plain, grey.rgb)
-    moved = full[window] - plain[window]  # [9, 3] half way to the blend
-    assert moved.abs().amax(dim=-1).min() > 0.02
-    # Every pixel of the lone disc's window sees it cover 1/9 of its own window; none outside moves.
-    torch.testing.assert_close(one[window] - plain[window], moved / 9, rtol=1e-4, atol=1e-6)
-    assert torch.equal(one[~window], plain[~window])
+def test_a_lone_mixed_pixel_moves_its_window_by_the_part_it_covers_and_nothing_else():
+    size = (128, 96)  # the feather window: 5/256 of 128 px, 3 px
+    mixed = torch.zeros(size, dtype=torch.bool)
+    mixed[40, 50] = True
+    window = torch.zeros_like(mixed)
+    window[39:42, 49:52] = True
+    for hard, mix in ((0.0, 1.0), (1.0, 0.25)):
+        share = feathered(torch.full((128 * 96,), hard), torch.full((128 * 96,), mix), mixed).reshape(size)
+        torch.testing.assert_close(share[window], torch.full((9,), hard + (mix - hard) / 9))
+        assert torch.equal(share[~window], torch.full((128 * 96 - 9,), hard))  # no rim
+
+
+def test_a_fill_is_smooth_where_every_splat_it_could_come_from_lies_on_one_surface():
+    # At 64 px the fill reaches 3 px (12/256): a pixel's window is 7 px square.
+    prior = torch.full((64, 64), torch.nan)
+    splatted = torch.zeros(64, 64, dtype=torch.bool)
+    for col, depth in ((10, 2.0), (14, 2.2), (40, 2.0), (44, 3.0)):  # a gentle slope, then a step
+        splatted[32, col] = True
+        prior[32, col] = depth
+    prior[30:35, 8:17] = torch.where(splatted[30:35, 8:17], prior[30:35, 8:17], torch.tensor(2.1))  # filled
+    prior[30:35, 38:47] = torch.where(splatted[30:35, 38:47], prior[30:35, 38:47], torch.tensor(2.5))
+    smooth = smooth_fill(prior, splatted)
+    assert smooth[32, 12] and smooth[30, 8]  # both points within 10 %
+    assert not smooth[32, 42]  # the fill between 2 and 3 crosses a step
+    assert smooth[32, 38]  # ... but the step's far point is 6 px off: out of this pixel's window
+    assert not smooth[splatted].any()  # a splat is not a fill
+    assert not smooth[0, 0]  # no prior
+
+
+def test_between_splats_on_one_smooth_surface_the_fill_is_mixed_like_a_splat(scene):
+    # A frame at the true depth agrees there exactly as the prior does: the all-or-nothing rule keeps its colour, the
+    # mix moves it half way to the blend. Splats every 4th pixel, filled between.
+    encoded, camera, photo, depth = scene
+    grey = frame(torch.full_like(photo, 0.5), torch.nan_to_num(depth, nan=4.0))
+    on_sphere = torch.isfinite(depth)
+    splatted = torch.zeros_like(on_sphere)
+    splatted[::4, ::4] = True
+    splatted &= on_sphere
+    out = blend_at_prior(grey, encoded, camera, depth, FAR, splatted=splatted)
+    fills = on_sphere & ~splatted & smooth_fill(depth, splatted)
+    assert fills.sum() > 0.5 * on_sphere.sum()
+    moved = (out.rgb - grey.rgb).abs().amax(dim=-1)
+    assert (moved[fills] > 0.01).float().mean() > 0.8
+    assert torch.equal(out.rgb[~on_sphere], grey.rgb[~on_sphere])
