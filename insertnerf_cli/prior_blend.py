@@ -59,11 +59,12 @@ UNSEEN_COST = 1.0
 # a fraction of the nearest, sits on one smooth surface and is mixed like a splat; elsewhere the fill may carry a
 # point's depth across an edge, and the all-or-nothing rule stays (round 35, fast generator at 10 views: 0.05 /
 # 0.15 / 0.25 / 0.4 gave mold_gold_cape 18.41 / 18.44 / 18.45 / 18.46 dB, room's 3-to-10 gain +1.07 / +1.08 / - /
-# +1.04; every fill mixed, +0.87).
+# +1.04; round 34's probe with every fill mixed: +0.87).
 SMOOTH_SPAN = 0.15
 # The window over which a splatted pixel's mix fades into the rule around it, as a fraction of the long side (5 px
-# at 256: 2 px past a 2-px disc). Inside it the mix's part is the window's share covered by discs, so an isolated
-# disc has no rim: a hard edge at the disc drew round gold spots into mold_gold_cape's opening at 512 px (round 35).
+# at 256: 2 px past a 2-px disc). Inside it the mix's part is the window's share covered by mixed pixels, so an
+# isolated disc has no rim: a hard edge at the disc drew round gold spots into mold_gold_cape's opening at 512 px
+# (round 35).
 FEATHER_FRACTION = 5 / 256
 # Pixels reprojected per pass: [V, 3 + 3 + 4 + 1, P] floats (colours, finer colours, ray_diff, mask) for 10 views
 # stay near 30 MB.
@@ -138,7 +139,7 @@ def blend_at_prior(frame: "ImageOutput", encoded: "EncodedViews", camera: Camera
     share = (usable & (agree_prior * MARGIN < agree_render)).to(param)  # [R] the blend's share of the colour
     if splatted is not None:
         check_shape("splatted", splatted, (height, width))
-        mixed = splatted | smooth_fill(prior, splatted)
+        mixed = splatted.to(prior.device) | smooth_fill(prior, splatted)  # [H, W]
         share = torch.where(usable, feathered(share, mix_share(agree_prior, agree_render), mixed), share)
     own, blended, weight = frame.rgb.reshape(-1, 3), torch.cat(colours).to(frame.rgb), share.to(frame.rgb)[:, None]
     # where(), not lerp() alone: a pixel the blend does not enter keeps its colour exactly, whatever the blend holds.
