@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
+from insertnerf_cli.model.occlusion import MIN_VISIBLE, Occlusion
 from insertnerf_cli.prior_blend import (blend, blend_at_prior, feathered, mix_share, reference_colours,
                                         smooth_fill)
 from insertnerf_cli.rays import rays_for_image
@@ -186,3 +187,20 @@ def test_between_splats_on_one_smooth_surface_the_fill_is_mixed_like_a_splat(sce
     moved = (out.rgb - grey.rgb).abs().amax(dim=-1)
     assert (moved[fills] > 0.01).float().mean() > 0.8
     assert torch.equal(out.rgb[~on_sphere], grey.rgb[~on_sphere])
+
+
+def test_the_blends_lookup_drops_a_reference_whose_map_shows_a_nearer_surface(scene):
+    encoded, camera, photo, depth = scene
+    views = encoded.images.shape[0]
+    surface = torch.full((views, 1, 4, 4), torch.inf, dtype=torch.float64)
+    surface[0] = 0.1  # view 0's own points: a surface right in front of it everywhere
+    hidden = encoded.with_occlusion(Occlusion(surface, torch.zeros(views, dtype=torch.float64)))
+    one = torch.ones(1)
+    rays = rays_for_image(camera.to(dtype=encoded.images.dtype), one, one)
+    prior = depth.reshape(-1)
+    plain, occluded = (reference_colours(e, rays, prior).mask[:, 0] for e in (encoded, hidden))  # [V, R]
+    # Where fewer than MIN_VISIBLE views would be left, every view that sees it keeps it (model.occlusion.visible).
+    sees = (plain[0] > 0) & (plain[1:].sum(dim=0) >= MIN_VISIBLE)
+    assert sees.sum() > 0.2 * torch.isfinite(prior).sum()
+    assert not occluded[0][sees].any()
+    assert torch.equal(occluded[1:], plain[1:])

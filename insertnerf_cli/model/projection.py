@@ -120,8 +120,7 @@ def project_samples(encoded: EncodedViews, points: Tensor, directions: Tensor, f
     centers = encoded.centers.to(points)
     fine = _finer_colours(encoded, uv, valid) if finer and encoded.colours is not None else None
     mask, ray_diff = valid.to(points.dtype), _ray_diff(centers, flat, directions, samples)
-    # Only the network's inputs read occlusion (features=False is prior_blend's plain lookup).
-    seen = None if encoded.occlusion is None or not features else \
+    seen = None if encoded.occlusion is None else \
         visible(encoded.occlusion, uv, depth, mask, ray_angle(ray_diff), encoded.width, encoded.height)
     return Projected(looked_up, _sample(encoded.images, grid), mask, ray_diff, fine, seen)
 
