@@ -106,11 +106,17 @@ def prior_splats(points: Tensor, camera: Cameras, reach_fraction: float | None =
     height, width = camera.height, camera.width
     long_side = max(height, width)
     splat = max(1, round(SPLAT_FRACTION * long_side))
-    reach = max(1, round(REACH_FRACTION * long_side)) if reach_fraction is None else round(reach_fraction * long_side)
+    reach = fill_reach(long_side) if reach_fraction is None else round(reach_fraction * long_side)
     uv, z = camera.to(device="cpu", dtype=torch.float64).project(points.to(device="cpu", dtype=torch.float64))
     front = z[0] > 1e-9  # uv is meaningless behind the camera
     depth = _splat(uv[0][front], z[0][front], height, width, splat)
     return _fill(depth, reach).to(camera.K.device), torch.isfinite(depth).to(camera.K.device)
+
+
+def fill_reach(long_side: int) -> int:
+    """How many px a splat's depth is carried into the empty pixels of a frame whose long side is ``long_side``
+    (REACH_FRACTION, at least 1)."""
+    return max(1, round(REACH_FRACTION * long_side))
 
 
 def _splat(uv: Tensor, z: Tensor, height: int, width: int, radius: int) -> Tensor:

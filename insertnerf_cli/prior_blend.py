@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from .cameras import Cameras, check_shape
-from .depth_prior import REACH_FRACTION
+from .depth_prior import fill_reach
 from .model.aggregate import angular_prior, weighted_moments
 from .model.projection import Projected, project_samples
 from .rays import Rays, rays_for_image
@@ -161,17 +161,18 @@ def feathered(hard: Tensor, mix: Tensor, mixed: Tensor) -> Tensor:
 
 def smooth_fill(prior: Tensor, splatted: Tensor) -> Tensor:
     """[H, W] bool: the filled pixels of ``prior`` [H, W] (NaN: none) whose splats within the fill's reach (a square
-    of 2 reach + 1 px, depth_prior.REACH_FRACTION; ``splatted`` [H, W]: a point's own disc) lie no more than
+    of 2 reach + 1 px, depth_prior.fill_reach; ``splatted`` [H, W]: a point's own disc) lie no more than
     SMOOTH_SPAN of the nearest one's depth behind it: every point the fill could have taken lies on one surface."""
     check_shape("splatted", splatted, tuple(prior.shape))
-    window = 2 * max(1, round(REACH_FRACTION * max(prior.shape))) + 1
-    depth, splats = prior.double()[None, None], splatted.to(prior.device)[None, None]  # [1, 1, H, W] each
+    window = 2 * fill_reach(max(prior.shape)) + 1
+    depth, splats = prior.double(), splatted.to(prior.device)  # [H, W] each
 
     def largest(values: Tensor) -> Tensor:  # [H, W] the largest of ``values`` on the splats in each window
-        return F.max_pool2d(torch.where(splats, values, -torch.inf), window, stride=1, padding=window // 2)[0, 0]
+        on_splats = torch.where(splats, values, -torch.inf)[None, None]  # [1, 1, H, W]
+        return F.max_pool2d(on_splats, window, stride=1, padding=window // 2)[0, 0]
 
     nearest, farthest = -largest(-depth), largest(depth)
-    filled = torch.isfinite(prior) & ~splatted.to(prior.device)
+    filled = torch.isfinite(prior) & ~splats
     return filled & torch.isfinite(nearest) & (farthest <= nearest * (1.0 + SMOOTH_SPAN))
 
 
