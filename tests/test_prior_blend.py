@@ -6,8 +6,8 @@ import torch
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.model.occlusion import MIN_VISIBLE, Occlusion
-from insertnerf_cli.prior_blend import (blend, blend_at_prior, feathered, mix_share, reference_colours,
-                                        smooth_fill)
+from insertnerf_cli.prior_blend import (FILL_POWER, MARGIN, blend, blend_at_prior, feathered, mix_share,
+                                        reference_colours, smooth_fill)
 from insertnerf_cli.rays import rays_for_image
 from insertnerf_cli.render import ImageOutput
 from model_fixtures import FAR, TINY, orbit_cameras, sphere_hit, sphere_images
@@ -62,12 +62,18 @@ def test_a_true_prior_replaces_a_wrong_depth_with_the_references_colour_there(sc
     assert torch.equal(out.opacity, wrong.opacity)
 
 
-def test_a_wrong_prior_leaves_a_right_frame_alone(scene):
+def test_a_wrong_prior_barely_moves_a_right_frame(scene):
     encoded, camera, photo, depth = scene
     right = frame(photo, torch.nan_to_num(depth, nan=4.0))
     out = blend_at_prior(right, encoded, camera, depth * 1.3, FAR)
-    kept = (out.rgb == photo).all(dim=-1)
-    assert kept.float().mean() >= 0.95
+    on_sphere = torch.isfinite(depth)
+    one = torch.ones(1)
+    rays = rays_for_image(camera.to(dtype=encoded.images.dtype), one, one)
+    blended = blend(reference_colours(encoded, rays, (depth * 1.3).reshape(-1))).reshape(photo.shape)
+    # The fill's steep mix gives the wrong prior's blend a small share at most (round 28's rule: none).
+    assert (out.rgb - photo).abs()[on_sphere].mean() < 0.1 * (blended - photo).abs()[on_sphere].mean()
+    assert (out.depth == depth * 1.3).float()[on_sphere].mean() < 0.05
+    assert torch.equal(out.rgb[~on_sphere], photo[~on_sphere])
 
 
 def test_no_prior_changes_nothing(scene):
@@ -110,6 +116,14 @@ def test_the_mix_weighs_each_depth_inversely_to_its_variance_squared():
     torch.testing.assert_close(mix_share(at_prior, at_render), expected)
 
 
+def test_the_fills_mix_passes_one_half_at_the_margin_and_is_steep_around_it():
+    ratio = torch.tensor([0.25, 0.5, 1.0, 2.0, 4.0])  # v_render / (MARGIN v_prior)
+    share = mix_share(torch.full_like(ratio, 0.01), 0.01 * MARGIN * ratio, FILL_POWER, MARGIN)
+    torch.testing.assert_close(share, ratio ** FILL_POWER / (ratio ** FILL_POWER + 1))
+    assert share[2] == pytest.approx(0.5)
+    assert share[1] < 0.15 and share[3] > 0.85  # a factor 2 either side: nearly the all-or-nothing rule
+
+
 def test_on_the_splats_a_true_prior_pulls_a_wrong_frame_toward_the_photo(scene):
     encoded, camera, photo, depth = scene
     grey = torch.full_like(photo, 0.5)
@@ -135,7 +149,7 @@ def test_on_the_splats_a_wrong_prior_barely_moves_a_right_frame(scene):
     assert (mixed.depth == depth * 1.3).float()[on_sphere].mean() < 0.1  # 0.04: the silhouette's pixels
 
 
-def test_pixels_no_point_lands_on_keep_the_all_or_nothing_rule(scene):
+def test_pixels_no_point_lands_on_keep_the_fills_rule(scene):
     encoded, camera, photo, depth = scene
     wrong = frame(torch.full_like(photo, 0.5), torch.nan_to_num(depth * 1.3, nan=4.0))
     plain = blend_at_prior(wrong, encoded, camera, depth, FAR)
