@@ -77,6 +77,7 @@ class ViewRenderer:
         from .views import view_rule
 
         self.method = view_rule(scene.layout)
+        self.object_centric = scene.layout != "forward"  # prior_blend's background plane: these captures only
         self.cache: OrderedDict[int, object] = OrderedDict()  # view index -> its EncodedViews (1)
         self.sfm_depth = sfm_depth and scene.points is not None
         self.prior_blend = prior_blend
@@ -134,7 +135,7 @@ class ViewRenderer:
         if prior is not None and self.prior_blend:
             from .prior_blend import blend_at_prior
 
-            frame = blend_at_prior(frame, encoded, camera, prior, far, splatted)
+            frame = blend_at_prior(frame, encoded, camera, prior, far, splatted, self.object_centric)
         return frame, refs
 
     def far_bound(self, camera: Cameras, far: float, exclude: list[int], views: int | None = None) -> float:

@@ -6,8 +6,8 @@ import torch
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.model.occlusion import MIN_VISIBLE, Occlusion
-from insertnerf_cli.prior_blend import (FILL_POWER, MARGIN, blend, blend_at_prior, feathered, mix_share,
-                                        reference_colours, smooth_fill)
+from insertnerf_cli.prior_blend import (BACKGROUND_QUANTILE, FILL_POWER, MARGIN, background_plane, blend,
+                                        blend_at_prior, feathered, mix_share, reference_colours, smooth_fill)
 from insertnerf_cli.rays import rays_for_image
 from insertnerf_cli.render import ImageOutput
 from model_fixtures import FAR, TINY, orbit_cameras, sphere_hit, sphere_images
@@ -218,3 +218,28 @@ def test_the_blends_lookup_drops_a_reference_whose_map_shows_a_nearer_surface(sc
     assert sees.sum() > 0.2 * torch.isfinite(prior).sum()
     assert not occluded[0][sees].any()
     assert torch.equal(occluded[1:], plain[1:])
+
+
+def test_the_background_plane_is_a_high_quantile_of_the_priors_depths_within_the_far_bound():
+    prior = torch.full((10, 20), torch.nan)
+    prior.view(-1)[:100] = torch.arange(1, 101, dtype=torch.float32)
+    assert background_plane(prior, far=50.0) == pytest.approx(round(BACKGROUND_QUANTILE * 50))
+    assert background_plane(prior, far=0.5) is None
+    assert background_plane(torch.full((4, 4), torch.nan), far=10.0) is None
+
+
+def test_in_an_object_capture_pixels_without_a_prior_mix_in_the_blend_at_the_background_plane(scene):
+    encoded, camera, photo, depth = scene
+    grey = frame(torch.full_like(photo, 0.5), torch.nan_to_num(depth * 0.7, nan=1.0))
+    prior = depth.clone()
+    prior[:, SIZE // 2:] = torch.nan  # half the sphere has no point, as a frame whose points miss a surface
+    bare = ~torch.isfinite(prior)
+    left_alone = blend_at_prior(grey, encoded, camera, prior, FAR)
+    assert torch.equal(left_alone.rgb[bare], grey.rgb[bare])  # forward-facing: no plane
+    out = blend_at_prior(grey, encoded, camera, prior, FAR, background=True)
+    before, after = (grey.rgb - photo).abs()[bare].mean(), (out.rgb - photo).abs()[bare].mean()
+    assert after < 0.7 * before
+    # Where the plane's blend takes over, the depth map holds the plane.
+    plane = background_plane(prior, FAR)
+    assert ((out.depth == plane) & bare).any()
+    assert torch.equal(out.rgb[~bare], left_alone.rgb[~bare])  # the pixels with a prior as before
