@@ -111,17 +111,22 @@ def reference_colours(encoded: "EncodedViews", rays: Rays, depth: Tensor, finer:
     return Projected((), seen.colours, seen.mask * known.to(seen.mask)[None, None], seen.ray_diff, seen.finer)
 
 
-def variance(seen: Projected) -> Tensor:
-    """[R] the references' summed RGB variance at each point under the lumigraph weights of the AGREE_VIEWS views
-    nearest in angle; UNSEEN_COST where fewer than two views see it."""
-    _, var = weighted_moments(seen.colours, angular_prior(seen.ray_diff, seen.mask, AGREE_VIEWS))  # [1, 3, R]
+def variance(seen: Projected, weights: Tensor | None = None) -> Tensor:
+    """[R] the references' summed RGB variance at each point under the lumigraph weights [V, 1, R] of the
+    AGREE_VIEWS views nearest in angle (``weights``: those, computed already); UNSEEN_COST where fewer than two
+    views see it."""
+    if weights is None:
+        weights = angular_prior(seen.ray_diff, seen.mask, AGREE_VIEWS)
+    _, var = weighted_moments(seen.colours, weights)  # [1, 3, R]
     lonely = seen.mask.sum(dim=(0, 1)) < 2
     return torch.where(lonely, torch.full_like(var[0, 0], UNSEEN_COST), var.sum(dim=1)[0])
 
 
-def blend(seen: Projected) -> Tensor:
-    """[R, 3] the lumigraph blend of the BLEND_VIEWS references nearest in angle (finer colours where held)."""
-    weights = angular_prior(seen.ray_diff, seen.mask, BLEND_VIEWS)  # [V, 1, R]
+def blend(seen: Projected, weights: Tensor | None = None) -> Tensor:
+    """[R, 3] the lumigraph blend of the BLEND_VIEWS references nearest in angle (finer colours where held) under
+    their weights [V, 1, R] (``weights``: those, computed already)."""
+    if weights is None:
+        weights = angular_prior(seen.ray_diff, seen.mask, BLEND_VIEWS)
     return (seen.blend_colours * weights).sum(dim=0).T
 
 
@@ -155,7 +160,7 @@ def blend_at_prior(frame: "ImageOutput", encoded: "EncodedViews", camera: Camera
     size = (height, width)
     at_prior = looked_up(encoded, rays, prior_flat)
     # The rendered depth is only tested, never blended at: no finer colours.
-    agree_render = patch_mean(looked_up(encoded, rays, rendered, finer=False).variance, size)
+    agree_render = patch_mean(looked_up(encoded, rays, rendered, colours=False).variance, size)
     agree_prior, colours, target = patch_mean(at_prior.variance, size), at_prior.colours, prior_flat
     # A pixel whose own prior point fewer than two references see has no blend to speak of (none: black), however
     # well its patch agrees.
@@ -190,13 +195,18 @@ class LookedUp:
     seen_twice: Tensor
 
 
-def looked_up(encoded: "EncodedViews", rays: Rays, depth: Tensor, finer: bool = True) -> LookedUp:
-    """The references at camera-z ``depth`` [R] along R ``rays`` (NaN: nothing there), PIXELS_PER_PASS at a time."""
+def looked_up(encoded: "EncodedViews", rays: Rays, depth: Tensor, colours: bool = True) -> LookedUp:
+    """The references at camera-z ``depth`` [R] along R ``rays`` (NaN: nothing there), PIXELS_PER_PASS at a time;
+    ``colours`` False: the variance alone (LookedUp.colours empty, [R, 0])."""
     parts = []
     for start in range(0, len(rays), PIXELS_PER_PASS):
         seen = reference_colours(encoded, rays[start:start + PIXELS_PER_PASS], depth[start:start + PIXELS_PER_PASS],
-                                 finer)
-        parts.append((variance(seen), blend(seen), seen.mask.sum(dim=(0, 1)) >= 2))
+                                 finer=colours)
+        # The lumigraph weights are most of a lookup's time (the angles' norms): one set where the two counts agree.
+        weights = angular_prior(seen.ray_diff, seen.mask, BLEND_VIEWS)  # [V, 1, R]
+        agree = weights if AGREE_VIEWS == BLEND_VIEWS else None
+        blended = blend(seen, weights) if colours else seen.colours.new_zeros(seen.colours.shape[-1], 0)
+        parts.append((variance(seen, agree), blended, seen.mask.sum(dim=(0, 1)) >= 2))
     return LookedUp(*(torch.cat(p) for p in zip(*parts)))
 
 

@@ -88,7 +88,11 @@ def ray_angle(ray_diff: Tensor) -> Tensor:
 
     2 asin(|u - q| / 2) is the angle between unit vectors u and q, accurate where acos(cos) is not (angle ~ 0).
     """
-    return 2.0 * torch.asin((ray_diff[:, :3].norm(dim=1, keepdim=True) / 2.0).clamp(max=1.0))
+    offset = ray_diff[:, :3]
+    # A sum of squares, not .norm(dim=1): reducing this 3-long middle axis, norm took 25 ms for [10, 3, 40000] on
+    # CPU against 0.4 (round 36), and every lookup of prior_blend and of the model's view weights takes one.
+    length = (offset * offset).sum(dim=1, keepdim=True).sqrt()
+    return 2.0 * torch.asin((length / 2.0).clamp(max=1.0))
 
 
 def projection_matrices(cameras: Cameras) -> Tensor:
