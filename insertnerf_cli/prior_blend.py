@@ -202,7 +202,7 @@ def looked_up(encoded: "EncodedViews", rays: Rays, depth: Tensor, colours: bool 
     for start in range(0, len(rays), PIXELS_PER_PASS):
         seen = reference_colours(encoded, rays[start:start + PIXELS_PER_PASS], depth[start:start + PIXELS_PER_PASS],
                                  finer=colours)
-        # The lumigraph weights are most of a lookup's time (the angles' norms): one set where the two counts agree.
+        # One set of lumigraph weights serves the variance and the blend where their view counts agree.
         weights = angular_prior(seen.ray_diff, seen.mask, BLEND_VIEWS)  # [V, 1, R]
         agree = weights if AGREE_VIEWS == BLEND_VIEWS else None
         blended = blend(seen, weights) if colours else seen.colours.new_zeros(seen.colours.shape[-1], 0)
