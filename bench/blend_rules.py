@@ -73,10 +73,18 @@ def dump(scene: str, out: Path, eval_args: list[str]) -> None:
     """Run eval on ``scene`` and save one record per rendered view and count under ``out`` (NNNN.pt)."""
     from insertnerf_cli.group import cli
 
+    from insertnerf_cli.view_renderer import ViewRenderer
+
     out.mkdir(parents=True, exist_ok=True)
-    shipped, shipped_psnr = prior_blend.blend_at_prior, evaluate.psnr
+    shipped, shipped_psnr, shipped_render = prior_blend.blend_at_prior, evaluate.psnr, ViewRenderer.render
     pending: dict = {}
     written = [0]
+
+    def hooked_render(self, *args, **kwargs):
+        pending.clear()
+        frame, refs = shipped_render(self, *args, **kwargs)
+        pending["views"], pending["render"] = len(refs), frame.rgb
+        return frame, refs
 
     def hooked_blend(frame, encoded, camera, prior, far, splatted=None, background=False):
         light = dataclasses.replace(encoded, features=())  # the blend never reads the U-Net features
@@ -85,14 +93,14 @@ def dump(scene: str, out: Path, eval_args: list[str]) -> None:
         return shipped(frame, encoded, camera, prior, far, splatted, background)
 
     def hooked_psnr(render, truth):
-        if pending:
-            record = dict(pending, truth=torch.as_tensor(truth), views=int(pending["encoded"]["images"].shape[0]))
-            torch.save(record, out / f"{written[0]:04d}.pt")
-            written[0] += 1
-            pending.clear()
+        # A frame without SfM points never reaches the blend: its record holds the render alone.
+        record = pending if "frame" in pending else {"views": pending["views"], "render": pending["render"]}
+        torch.save(dict(record, truth=torch.as_tensor(truth)), out / f"{written[0]:04d}.pt")
+        written[0] += 1
+        pending.clear()
         return shipped_psnr(render, truth)
 
-    prior_blend.blend_at_prior, evaluate.psnr = hooked_blend, hooked_psnr
+    prior_blend.blend_at_prior, evaluate.psnr, ViewRenderer.render = hooked_blend, hooked_psnr, hooked_render
     cli.main(["eval", scene, *eval_args], prog_name="insertnerf", standalone_mode=False)
     print(f"{written[0]} records in {out}", file=sys.stderr)
 
@@ -122,6 +130,9 @@ def score(records: list[dict], variant: str) -> dict[int, float]:
     try:
         by_count = defaultdict(list)
         for r in records:
+            if "frame" not in r:  # no SfM points in this frame: no blend to vary
+                by_count[r["views"]].append(psnr(r["render"].double(), r["truth"]))
+                continue
             out = prior_blend.blend_at_prior(r["frame"], r["encoded"], r["camera"], r["prior"], r["far"],
                                              r["splatted"], r["background"])
             by_count[r["views"]].append(psnr(out.rgb.double(), r["truth"]))
