@@ -8,10 +8,10 @@ U-Net features, the camera, the SfM prior and its splats, the far bound, the bac
 dump's mean PSNR at each count, as shipped and as each variant's difference. A variant sets module constants of
 prior_blend (`BACKGROUND_MARGIN=2`, several joined by `+`) or runs a Python file (`exec:FILE`, run with `pb` bound to
 prior_blend and `torch`; it may replace prior_blend's functions or add constants that later parts set). A constant
-read only as a default argument (MIX_POWER, mix_share's power) is bound at import: replace the function instead. Each
-variant is undone before the next. A view whose frame has no SfM points never reaches the blend: its record
-holds its render alone, which every variant keeps. The shipped scores equal eval's to the last digit: eval scores the blend's
-output unrounded.
+read only as a default argument (MIX_POWER in mix_share, WINDOW_FRACTION in patch_mean) is bound at import:
+replace the function instead. Each variant is undone before the next. A view whose frame has no SfM points never
+reaches the blend: its record holds its render alone, which every variant keeps. The shipped scores equal eval's
+to the last digit: eval scores the blend's output unrounded.
 
     OMP_NUM_THREADS=1 python3 bench/blend_rules.py dump /work/shared/realdata/room runs/blend/room --views 3,10
     OMP_NUM_THREADS=1 python3 bench/blend_rules.py score runs/blend/room runs/blend/flower \\
