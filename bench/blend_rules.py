@@ -45,6 +45,7 @@ KINDS = ("insertnerf_cli.model.types:EncodedViews", "insertnerf_cli.model.occlus
 
 
 ADDED = "__names_before_exec__"
+RECORDS = "[0-9][0-9][0-9][0-9].pt"  # a dump's own files: NNNN.pt in the order eval scored them
 
 
 def flat(value):
@@ -73,10 +74,13 @@ def unflat(value):
 
 def dump(scene: str, out: Path, eval_args: list[str]) -> None:
     """Run eval on ``scene`` and save one record per rendered view and count under ``out`` (NNNN.pt)."""
-    from insertnerf_cli.group import cli
+    import click
 
+    from insertnerf_cli.group import cli
     from insertnerf_cli.view_renderer import ViewRenderer
 
+    if out.is_dir() and any(out.glob(RECORDS)):
+        raise SystemExit(f"{out} holds a dump already; choose another folder or remove its records first")
     out.mkdir(parents=True, exist_ok=True)
     shipped, shipped_psnr, shipped_render = prior_blend.blend_at_prior, evaluate.psnr, ViewRenderer.render
     pending: dict = {}
@@ -103,7 +107,11 @@ def dump(scene: str, out: Path, eval_args: list[str]) -> None:
         return shipped_psnr(render, truth)
 
     prior_blend.blend_at_prior, evaluate.psnr, ViewRenderer.render = hooked_blend, hooked_psnr, hooked_render
-    cli.main(["eval", scene, *eval_args], prog_name="insertnerf", standalone_mode=False)
+    try:
+        cli.main(["eval", scene, *eval_args], prog_name="insertnerf", standalone_mode=False)
+    except click.ClickException as err:
+        err.show()
+        raise SystemExit(err.exit_code) from None
     print(f"{written[0]} records in {out}", file=sys.stderr)
 
 
@@ -153,8 +161,9 @@ def undo_variant(undo: dict) -> None:
 
 
 def load(folder: Path) -> list[dict]:
+    """The records of one dump, in the order eval wrote them (other .pt files in the folder are left alone)."""
     records = []
-    for path in sorted(folder.glob("[0-9][0-9][0-9][0-9].pt")):  # dump's own records only
+    for path in sorted(folder.glob(RECORDS)):
         raw = torch.load(path, weights_only=True)
         records.append({k: unflat(v) for k, v in raw.items()})
     return records
