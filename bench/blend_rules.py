@@ -81,7 +81,6 @@ def dump(scene: str, out: Path, eval_args: list[str]) -> None:
 
     if out.is_dir() and any(out.glob(RECORDS)):
         raise SystemExit(f"{out} holds a dump already; choose another folder or remove its records first")
-    out.mkdir(parents=True, exist_ok=True)
     shipped, shipped_psnr, shipped_render = prior_blend.blend_at_prior, evaluate.psnr, ViewRenderer.render
     pending: dict = {}
     written = [0]
@@ -101,6 +100,7 @@ def dump(scene: str, out: Path, eval_args: list[str]) -> None:
     def hooked_psnr(render, truth):
         # A frame without SfM points never reaches the blend: its record holds the render alone.
         record = pending if "frame" in pending else {"views": pending["views"], "render": pending["render"]}
+        out.mkdir(parents=True, exist_ok=True)  # only once eval has rendered: a bad argument leaves no folder
         torch.save(dict(record, truth=torch.as_tensor(truth)), out / f"{written[0]:04d}.pt")
         written[0] += 1
         pending.clear()
