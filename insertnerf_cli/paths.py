@@ -22,16 +22,23 @@ PathKind = Literal["orbit", "spiral", "input"]
 PATH_KINDS: tuple[str, ...] = ("orbit", "spiral", "input")
 
 # LLFF's render path: two turns with a slow in-and-out motion (zrate 0.5 closes after exactly two turns),
-# radii from the 90th percentile of camera offsets, focus at a disparity mix of near and far.
+# radii from the 90th percentile of camera offsets. Its focus is not LLFF's (a disparity mix of near and far, about
+# 4 x near) but the depth within [NEAR_MARGIN x near, FAR_FACTOR x far] at which the frames turn least from the
+# inputs beside them: a generalizable renderer draws only what its references saw, and LLFF's focus turned room's
+# frames 17 degrees on average from the photo nearest each (0.8 now), a third of each frame drawn from walls no
+# reference sees well (issue 27, round 37; bench/path_turn.py).
 SPIRAL_TURNS = 2
 SPIRAL_ZRATE = 0.5
 SPIRAL_RADIUS_QUANTILE = 0.9
 SPIRAL_NEAR_MARGIN = 0.9
 SPIRAL_FAR_FACTOR = 5.0
-SPIRAL_NEAR_WEIGHT = 0.25
 # A spiral needs a common viewing direction: the mean of the unit optical axes must keep at least this length
 # (about 45 degrees of spread), else the inputs surround the scene and an orbit is the path to take.
 SPIRAL_MIN_AXIS_AGREEMENT = 0.7
+# The spiral's focus depth is chosen among this many depths between its bounds, scoring the turn of this many
+# frames along the path (whatever --frames asks: the same focus for every frame count).
+SPIRAL_FOCUS_DEPTHS = 256
+SPIRAL_FOCUS_SAMPLES = 64
 
 
 @dataclass(frozen=True)
@@ -142,9 +149,9 @@ def orbit_path(cameras: Cameras, near: Tensor, far: Tensor, frames: int, size: t
 def spiral_path(cameras: Cameras, near: Tensor, far: Tensor, frames: int, size: tuple[int, int]) -> CameraPath:
     """LLFF's spiral: ``frames`` cameras circling around the average pose, all looking at one focus point.
 
-    The focus lies along the average optical axis at LLFF's disparity mix of near and far; the radii along the
-    average camera's x, y, z are the 90th percentiles of the input centres' offsets; two turns with a z motion
-    at half rate close the loop.
+    The radii along the average camera's x, y, z are the 90th percentiles of the input centres' offsets; two turns
+    with a z motion at half rate close the loop. The focus lies along the average optical axis at the depth that
+    keeps the frames looking where the inputs looked (turn_matched_depth), not at LLFF's.
     """
     _check_frames(frames)
     agreement = float(torch.nn.functional.normalize(cameras.forward, dim=-1).mean(0).norm())
@@ -153,19 +160,40 @@ def spiral_path(cameras: Cameras, near: Tensor, far: Tensor, frames: int, size: 
                         "scene); use --path orbit or --path input")
     centre = cameras.centers.mean(0)
     axes = [torch.nn.functional.normalize(cameras.c2w[:, :3, i].mean(0), dim=0) for i in range(3)]
-    forward = axes[2]
-    near_focus, far_focus = SPIRAL_NEAR_MARGIN * near.min(), SPIRAL_FAR_FACTOR * far.max()
-    depth = 1.0 / (SPIRAL_NEAR_WEIGHT / near_focus + (1 - SPIRAL_NEAR_WEIGHT) / far_focus)
-    focus = centre + depth * forward
     offsets = cameras.centers - centre  # [N, 3]
     radii = [torch.quantile((offsets @ a).abs(), SPIRAL_RADIUS_QUANTILE) for a in axes]
-    t = torch.arange(frames, dtype=offsets.dtype, device=offsets.device) * (2 * math.pi * SPIRAL_TURNS / frames)
-    waves = [torch.cos(t), torch.sin(t), torch.sin(SPIRAL_ZRATE * t)]
-    eyes = centre + sum(r * wave[:, None] * a for r, wave, a in zip(radii, waves, axes))  # [F, 3]
-    c2w = look_at(eyes, focus, -axes[1])
+
+    def spiral(count: int) -> Tensor:  # [count, 3] eyes evenly spaced along the two turns
+        t = torch.arange(count, dtype=offsets.dtype, device=offsets.device) * (2 * math.pi * SPIRAL_TURNS / count)
+        waves = [torch.cos(t), torch.sin(t), torch.sin(SPIRAL_ZRATE * t)]
+        return centre + sum(r * wave[:, None] * a for r, wave, a in zip(radii, waves, axes))
+
+    bounds = (SPIRAL_NEAR_MARGIN * float(near.min()), SPIRAL_FAR_FACTOR * float(far.max()))
+    depth = turn_matched_depth(cameras, spiral(SPIRAL_FOCUS_SAMPLES), centre, axes[2], bounds)
+    focus = centre + depth * axes[2]
+    c2w = look_at(spiral(frames), focus, -axes[1])
     h, w = size
     path_cams = Cameras(_path_intrinsics(cameras, h, w, frames), c2w, h, w)
     return CameraPath("spiral", path_cams, near.min().expand(frames).clone(), far.max().expand(frames).clone(), focus)
+
+
+def turn_matched_depth(cameras: Cameras, eyes: Tensor, centre: Tensor, forward: Tensor,
+                       bounds: tuple[float, float]) -> float:
+    """The depth s within ``bounds`` (near, far) at which cameras at ``eyes`` [F, 3] looking at centre + s
+    ``forward`` (both [3]) turn least from the input cameras beside them: the smallest mean angle between an eye's
+    axis and its nearest input camera's (by position, as forward-facing frames pick their references), among
+    SPIRAL_FOCUS_DEPTHS depths evenly spaced in log depth (the farthest of equals). Parallel inputs give the far
+    bound, inputs turned toward one point give its depth."""
+    inputs = torch.nn.functional.normalize(cameras.forward.to(torch.float64), dim=-1)  # [N, 3]
+    eyes = eyes.to(inputs)
+    beside = inputs[torch.cdist(eyes, cameras.centers.to(inputs)).argmin(dim=1)]  # [F, 3]
+    depths = torch.logspace(math.log10(bounds[0]), math.log10(bounds[1]), SPIRAL_FOCUS_DEPTHS,
+                            dtype=torch.float64, device=inputs.device)  # [D]
+    targets = centre.to(inputs) + depths[:, None] * forward.to(inputs)  # [D, 3]
+    views = torch.nn.functional.normalize(targets[:, None] - eyes[None], dim=-1)  # [D, F, 3]
+    turn = torch.acos((views * beside[None]).sum(dim=-1).clamp(-1.0, 1.0)).mean(dim=-1)  # [D]
+    farthest_best = SPIRAL_FOCUS_DEPTHS - 1 - int(turn.flip(0).argmin())
+    return float(depths[farthest_best])
 
 
 def input_path(cameras: Cameras, near: Tensor, far: Tensor, size: tuple[int, int],

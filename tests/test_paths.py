@@ -93,15 +93,37 @@ def test_spiral_looks_at_one_focus_in_front_and_closes():
     path = spiral_path(cams, near, far, frames=40, size=(60, 80))
     assert len(path) == 40 and path.kind == "spiral"
     _assert_looks_at(path.cameras, path.focus)
-    # The focus sits on the mean optical axis (+z) at LLFF's depth 1 / (0.25 / (0.9 near) + 0.75 / (5 far)).
-    expected_depth = 1.0 / (0.25 / (0.9 * 2.0) + 0.75 / (5 * 10.0))
-    torch.testing.assert_close(path.focus, torch.tensor([0.0, 0.0, expected_depth], dtype=torch.float64))
+    # Parallel axes meet nowhere: the focus sits on the mean optical axis (+z) at 5 x far, so the frames keep
+    # (nearly) the inputs' own direction.
+    torch.testing.assert_close(path.focus, torch.tensor([0.0, 0.0, 5 * 10.0], dtype=torch.float64))
+    assert float(path.cameras.forward[:, 2].min()) > math.cos(math.radians(0.5))
     # Frames stay within the rig's radii (90th percentile of offsets) and the spiral returns to its start.
     offsets = path.cameras.centers - cams.centers.mean(0)
     assert float(offsets[:, 0].abs().max()) <= 0.3 + 1e-9 and float(offsets[:, 1].abs().max()) <= 0.2 + 1e-9
     step = (path.cameras.centers[1] - path.cameras.centers[0]).norm()
     closing = (path.cameras.centers[0] - path.cameras.centers[-1]).norm()
     torch.testing.assert_close(closing, step, rtol=0.1, atol=0.0)
+
+
+def test_spiral_turns_as_the_inputs_turn():
+    # A forward rig whose cameras all look at a point 3 units ahead: the spiral looks at it too (not at LLFF's
+    # nearer focus), so its frames turn no further than the inputs do.
+    xs, ys = torch.meshgrid(torch.linspace(-0.3, 0.3, 9, dtype=torch.float64),
+                            torch.linspace(-0.2, 0.2, 9, dtype=torch.float64), indexing="ij")
+    centres = torch.stack([xs.flatten(), ys.flatten(), torch.zeros(81, dtype=torch.float64)], dim=-1)  # a 9 x 9 grid
+    K, down = intrinsics(60.0, 60.0, 40.0, 30.0).expand(81, 3, 3), torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)
+    target = torch.tensor([0.0, 0.0, 3.0], dtype=torch.float64)
+    cams = Cameras(K, look_at(centres, target, down), 60, 80)
+    path = spiral_path(cams, *_bounds(len(cams), 2.0, 10.0), frames=12, size=(60, 80))
+    # A frame between two cameras is matched with the nearer one, which looks from a little aside: within 3 %.
+    torch.testing.assert_close(path.focus, target, atol=0.09, rtol=0)
+    # Axes that spread apart (a fan, meeting behind the cameras) give the far focus, like parallel ones.
+    fan = Cameras(K, look_at(centres, 2 * centres + target, down), 60, 80)
+    torch.testing.assert_close(spiral_path(fan, *_bounds(len(fan), 2.0, 10.0), 12, (60, 80)).focus[2],
+                               torch.tensor(50.0, dtype=torch.float64))
+    # A focus nearer than 0.9 x near is held there.
+    close = spiral_path(cams, *_bounds(len(cams), 5.0, 10.0), frames=12, size=(60, 80))
+    torch.testing.assert_close(close.focus[2], torch.tensor(4.5, dtype=torch.float64))
 
 
 def test_input_path_rescales_and_subsamples_the_inputs():
