@@ -3,9 +3,9 @@ the photo nearest it (by position: a forward-facing frame's references are its n
 nearest in angle.
 
 Issue 27 (round 37): a generalizable renderer draws only what its references saw, so a frame that looks where no
-photo looked draws walls no reference sees well. LLFF's spiral focus (about 4 x near) turned room's frames 13-21
-degrees beyond any photo; the focus at which the frames turn least from the photos beside them keeps them within
-about a degree. The path is built as render builds it (the normalised scene, paths.make_path), not rendered.
+photo looked draws walls no reference sees well. LLFF's spiral focus (about 4 x near) turned room's frames 17
+degrees on average (21 at most) from the photo nearest each; the focus at which the frames turn least from the
+photos beside them keeps them at 0.8 (1.7). The path is built as render builds it (the normalised scene, paths.make_path), not rendered.
 
     python3 bench/path_turn.py SCENE_DIR [SCENE_DIR ...] [--path spiral] [--frames 30]
 """
