@@ -22,9 +22,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from model_speed import FAR, NEAR, orbit  # noqa: E402
 
-from insertnerf_cli.checkpoint import BUNDLED_MODELS, DEFAULT_MODEL, bundled_checkpoint, load_model  # noqa: E402
+from insertnerf_cli.model.checkpoint import BUNDLED_MODELS, DEFAULT_MODEL, bundled_checkpoint, load_model  # noqa: E402
 from insertnerf_cli.model import SourceViews  # noqa: E402
-from insertnerf_cli.rays import rays_for_image  # noqa: E402
+from insertnerf_cli.cameras.rays import rays_for_image  # noqa: E402
 
 
 def median_ms(work, repeats: int) -> float:

@@ -17,13 +17,13 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.checkpoint import bundled_checkpoint, load_model  # noqa: E402
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model  # noqa: E402
 from insertnerf_cli.metrics import psnr  # noqa: E402
 from insertnerf_cli.scenes import load_scene, normalize_scene  # noqa: E402
 from insertnerf_cli.training.depth import read_scene_depth  # noqa: E402
-from insertnerf_cli.triangulate import with_points  # noqa: E402
-from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
-from insertnerf_cli.views import held_out_views  # noqa: E402
+from insertnerf_cli.sfm.triangulate import with_points  # noqa: E402
+from insertnerf_cli.rendering.view_renderer import ViewRenderer  # noqa: E402
+from insertnerf_cli.scenes.views import held_out_views  # noqa: E402
 
 MIN_OPACITY = 0.5  # as render's depth maps
 

@@ -24,14 +24,16 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.checkpoint import bundled_checkpoint, load_model, save_checkpoint  # noqa: E402
-from insertnerf_cli.commands.common import resolve_device  # noqa: E402
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model, save_checkpoint  # noqa: E402
+from insertnerf_cli.cli.commands.common import resolve_device  # noqa: E402
 from insertnerf_cli.errors import UserError  # noqa: E402
 from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune  # noqa: E402
 from insertnerf_cli.finetune.data import finetune_scene  # noqa: E402
-from insertnerf_cli.evaluate import DEFAULT_RESOLUTION, DEFAULT_VIEWS, EvalConfig, evaluate_scene  # noqa: E402
+from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS  # noqa: E402
+from insertnerf_cli.exporters.records import EvalConfig  # noqa: E402
+from insertnerf_cli.pipelines.evaluate import evaluate_scene  # noqa: E402
 from insertnerf_cli.training.data import ImageCache, ViewDraw, make_batch  # noqa: E402
-from insertnerf_cli.views import nearest_views  # noqa: E402
+from insertnerf_cli.scenes.views import nearest_views  # noqa: E402
 
 
 def snapshot_hook(marks: list[float], path_for) -> callable:

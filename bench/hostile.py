@@ -77,7 +77,7 @@ def launcher(installed: bool) -> list[str]:
     """The command line that starts `insertnerf`: this checkout's code by default."""
     if installed:
         return [shutil.which("insertnerf") or "insertnerf"]
-    return [sys.executable, "-c", "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli import main; main()"]
+    return [sys.executable, "-c", "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli.main import main; main()"]
 
 
 def base_env(work: Path) -> dict[str, str]:

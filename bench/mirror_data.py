@@ -25,7 +25,7 @@ from click.testing import CliRunner
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.group import cli  # noqa: E402
+from insertnerf_cli.cli.group import cli  # noqa: E402
 from insertnerf_cli.synth import builder, compose, enclosures, world  # noqa: E402
 
 _SYNTH_MATERIAL = world.random_material

@@ -19,13 +19,13 @@ import time
 
 import torch
 
-from insertnerf_cli.cameras import Cameras, intrinsics
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.config import ModelConfig, config_from_json
 from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.model.hypernet import count_parameters
-from insertnerf_cli.paths import look_at
-from insertnerf_cli.rays import rays_for_image
-from insertnerf_cli.render import render_image
+from insertnerf_cli.rendering.camera_paths import look_at
+from insertnerf_cli.cameras.rays import rays_for_image
+from insertnerf_cli.rendering.image_renderer import render_image
 
 RADIUS, NEAR, FAR = 3.0, 1.5, 4.5
 

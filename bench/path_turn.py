@@ -21,8 +21,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli.errors import UserError  # noqa: E402
-from insertnerf_cli.paths import make_path  # noqa: E402
-from insertnerf_cli.pipeline import DEFAULT_FRAMES  # noqa: E402
+from insertnerf_cli.rendering.camera_paths import make_path  # noqa: E402
+from insertnerf_cli.exporters.records import DEFAULT_FRAMES  # noqa: E402
 from insertnerf_cli.scenes import load_scene, normalize_scene  # noqa: E402
 
 

@@ -30,8 +30,8 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.cameras import Cameras, intrinsics  # noqa: E402
-from insertnerf_cli.colmap import PosesOptions, estimate_poses  # noqa: E402
+from insertnerf_cli.cameras.camera import Cameras, intrinsics  # noqa: E402
+from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses  # noqa: E402
 from insertnerf_cli.scenes.colmap_model import fit_similarity  # noqa: E402
 
 ROOM_HALF = 5.0  # the room spans [-5, 5]^3

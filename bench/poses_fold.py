@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from poses_accuracy import orbit_cameras, pose_errors, render, solid_texture  # noqa: E402
 
-from insertnerf_cli.colmap import PosesOptions, estimate_poses  # noqa: E402
+from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses  # noqa: E402
 
 ROOM_HALF, ROOM_HEIGHT, BOX = 8.0, 6.0, (1.2, 0.8, 1.6)  # room half-width and height, box extents (world units)
 

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from poses_accuracy import orbit_cameras, pose_errors, render, solid_texture  # noqa: E402
 
-from insertnerf_cli.colmap import PosesOptions, estimate_poses  # noqa: E402
+from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses  # noqa: E402
 
 CUBE_HALF = 1.0
 

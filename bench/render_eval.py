@@ -42,7 +42,7 @@ def run(args: list[str], tree: Path = HERE, cwd: Path | None = None) -> tuple[fl
     entry = ("import atexit, resource, sys; atexit.register(lambda: sys.stderr.write("
              "f'\\nPEAK_RSS_KIB {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n')); "
              "import insertnerf_cli; sys.stderr.write(f'IMPORTED {insertnerf_cli.__file__}\\n'); "
-             "from insertnerf_cli.cli import main; main()")
+             "from insertnerf_cli.cli.main import main; main()")
     proc = subprocess.run([sys.executable, "-c", entry, *args], capture_output=True, text=True, cwd=cwd,
                           env={**os.environ, "PYTHONPATH": str(tree)})
     wall = time.perf_counter() - start
@@ -117,7 +117,7 @@ def _truth_along(dataset: Path, render_dir: Path) -> list[tuple["np.ndarray", "n
     import numpy as np
     import torch
 
-    from insertnerf_cli.cameras import Cameras, intrinsics
+    from insertnerf_cli.cameras.camera import Cameras, intrinsics
     from insertnerf_cli.synth.capture import develop, draw_settings
     from insertnerf_cli.synth.raycast import build_scene_mesh
     from insertnerf_cli.synth.render import auto_exposure, render_view

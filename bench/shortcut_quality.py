@@ -25,7 +25,8 @@ from typing import Iterator
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insertnerf_cli import render  # noqa: E402
-from insertnerf_cli.evaluate import EvalConfig, evaluate_scene  # noqa: E402
+from insertnerf_cli.exporters.records import EvalConfig  # noqa: E402
+from insertnerf_cli.pipelines.evaluate import evaluate_scene  # noqa: E402
 
 
 FIELDS = ("coarse_stride", "fine_stride", "smooth_rgb", "smooth_depth")

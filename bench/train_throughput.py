@@ -33,10 +33,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.cameras import Cameras, intrinsics  # noqa: E402
+from insertnerf_cli.cameras.camera import Cameras, intrinsics  # noqa: E402
 from insertnerf_cli.config import ModelConfig  # noqa: E402
 from insertnerf_cli.model import InsertNeRF  # noqa: E402
-from insertnerf_cli.paths import look_at  # noqa: E402
+from insertnerf_cli.rendering.camera_paths import look_at  # noqa: E402
 from insertnerf_cli.scenes import write_blender_transforms  # noqa: E402
 from insertnerf_cli.training import TrainConfig, train  # noqa: E402
 from insertnerf_cli.training.config import read_model_config  # noqa: E402

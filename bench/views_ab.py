@@ -19,8 +19,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.checkpoint import bundled_checkpoint, export_weights  # noqa: E402
-from insertnerf_cli.evaluate import EvalConfig, run_eval  # noqa: E402
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, export_weights  # noqa: E402
+from insertnerf_cli.exporters.records import EvalConfig  # noqa: E402
+from insertnerf_cli.pipelines.evaluate import run_eval  # noqa: E402
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 

@@ -20,11 +20,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.checkpoint import bundled_checkpoint, load_model  # noqa: E402
-from insertnerf_cli.view_renderer import ViewRenderer  # noqa: E402
-from insertnerf_cli.rays import rays_from_pixels  # noqa: E402
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model  # noqa: E402
+from insertnerf_cli.rendering.view_renderer import ViewRenderer  # noqa: E402
+from insertnerf_cli.cameras.rays import rays_from_pixels  # noqa: E402
 from insertnerf_cli.scenes import load_scene, normalize_scene  # noqa: E402
-from insertnerf_cli.views import held_out_views  # noqa: E402
+from insertnerf_cli.scenes.views import held_out_views  # noqa: E402
 
 REGIONS = ("all", "near", "middle", "far", "edges")
 EDGE_QUANTILE = 0.85

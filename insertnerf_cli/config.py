@@ -12,7 +12,7 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
-from .errors import UserError
+from insertnerf_cli.errors import UserError
 
 T = TypeVar("T")
 
@@ -36,16 +36,16 @@ class ModelConfig:
     # --- multi-layer dynamic-static aggregation
     aggregate_hidden: int = 8  # hidden width of the dynamic-weight MLP (per view, so kept small)
     static_sharpness_init: float = 0.2  # IBRNet's s in exp(|s|(cos - 1))
-    visibility_cue: bool = False  # each view's deviation from the others feeds its dynamic weight (issue 27)
+    visibility_cue: bool = False  # each view's deviation from the others feeds its dynamic weight
     # K > 0: the reference colour weighs each view by its dynamic weight times the unstructured-lumigraph prior
-    # over the K views whose rays through the sample are closest in angle to the query ray (aggregate.py,
-    # issue 27); 0: by the dynamic weight alone.
+    # over the K views whose rays through the sample are closest in angle to the query ray (aggregate.py); 0: by
+    # the dynamic weight alone.
     colour_prior_views: int = 0
     # K > 0: each sample aggregates at most the K reference views whose rays through it are closest in angle to
     # the query ray (projection.nearest_in_angle); 0: every view. A render asked for more views than training
-    # drew then still feeds the aggregator statistics over a training-like count, chosen per sample (issue 27).
+    # drew then still feeds the aggregator statistics over a training-like count, chosen per sample.
     sample_views: int = 0
-    # Photo-consistency (model/consistency.py, issue 27): T > 0 multiplies a pass's compositing weights by
+    # Photo-consistency (model/consistency.py): T > 0 multiplies a pass's compositing weights by
     # exp(-v / T), v the variance of the reference colours under the lumigraph prior of ``consistency_views`` K
     # (the K-1 views nearest in angle), so the weight moves to the depths where the views agree (a plane-sweep
     # cue, no parameters); 0: off.
@@ -75,7 +75,7 @@ class ModelConfig:
     blend_reference_colour: bool = True  # mix the network colour with the dynamic-weight blend of reference colours
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     # What a ray sees past its far bound: the reference views' colours where they see the ray's direction at
-    # infinity, aggregated like any sample (issue 27); ``background`` then only fills rays no view sees there.
+    # infinity, aggregated like any sample; ``background`` then only fills rays no view sees there.
     infinity_sample: bool = False
     # --- loss weights (method.md section 3)
     loss_backbone_weight: float = 0.1

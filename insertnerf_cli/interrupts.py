@@ -1,4 +1,4 @@
-"""Ctrl-C held while slow modules import (used by the entry point in cli.py and the command group in group.py).
+"""Ctrl-C held while slow modules import (used by the entry point in cli/main.py and the command group in cli/group.py).
 
 Standard library only: the entry point imports this before anything slow, and it must load in a few milliseconds.
 """

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .cameras import check_shape
+from insertnerf_cli.cameras.camera import check_shape
 
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5

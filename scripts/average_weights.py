@@ -5,7 +5,7 @@
 import argparse
 import sys
 
-from insertnerf_cli.checkpoint import average_weights
+from insertnerf_cli.model.checkpoint import average_weights
 from insertnerf_cli.errors import UserError
 
 if __name__ == "__main__":

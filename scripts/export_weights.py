@@ -7,7 +7,7 @@ One option per inference-only config field (checkpoint.INFERENCE_FIELDS) sets it
 """
 import argparse
 
-from insertnerf_cli.checkpoint import INFERENCE_FIELDS, export_weights
+from insertnerf_cli.model.checkpoint import INFERENCE_FIELDS, export_weights
 from insertnerf_cli.config import ModelConfig
 
 if __name__ == "__main__":

@@ -26,9 +26,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insertnerf_cli.atomic import process_alive  # noqa: E402  (the liveness rule of atomic writes)
+from insertnerf_cli.files.atomic import process_alive  # noqa: E402  (the liveness rule of atomic writes)
 
-INSERTNERF = [sys.executable, "-c", "from insertnerf_cli.cli import main; main()"]
+INSERTNERF = [sys.executable, "-c", "from insertnerf_cli.cli.main import main; main()"]
 BROUGHT_BACK = ("checkpoints/last.pt", "checkpoints/best.pt", "checkpoints/config.json", "metrics.jsonl", "splits.json")
 
 

@@ -6,10 +6,10 @@ import math
 import numpy as np
 import torch
 
-from insertnerf_cli.cameras import Cameras, intrinsics
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.config import ModelConfig
 from insertnerf_cli.model import EncodedViews, InsertNeRF, SourceViews
-from insertnerf_cli.paths import look_at
+from insertnerf_cli.rendering.camera_paths import look_at
 
 RADIUS = 3.0  # camera distance from the origin
 SPHERE = 1.0  # sphere radius

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import torch
 
-from insertnerf_cli.cameras import Cameras, intrinsics, opencv_to_llff
+from insertnerf_cli.cameras.camera import Cameras, intrinsics, opencv_to_llff
 from insertnerf_cli.scenes.writers import write_blender_transforms, write_nerfstudio_transforms
 
 HEIGHT, WIDTH, FOCAL = 24, 32, 30.0

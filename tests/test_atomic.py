@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from insertnerf_cli.atomic import atomic_path, write_json
+from insertnerf_cli.files.atomic import atomic_path, write_json
 
 
 def test_a_failed_write_leaves_neither_the_file_nor_a_temporary(tmp_path):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from insertnerf_cli.cli import cli
+from insertnerf_cli.cli.main import cli
 from insertnerf_cli.config import ModelConfig, config_to_json
 from insertnerf_cli.training.data import find_scenes
 from scene_fixtures import (known_scene, write_blender, write_colmap, write_dtu_idr, write_dtu_mvsnet, write_llff,

@@ -1,8 +1,8 @@
 """The pretrained generator shipped in the package loads safely and renders."""
 import torch
 
-from insertnerf_cli.checkpoint import bundled_checkpoint, load_model
-from insertnerf_cli.render import render_image
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model
+from insertnerf_cli.rendering.image_renderer import render_image
 from model_fixtures import FAR, NEAR, orbit_cameras, sphere_views
 
 MAX_BYTES = 25 * 2**20

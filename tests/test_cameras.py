@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from insertnerf_cli.cameras import (Cameras, check_shape, intrinsics, llff_to_opencv, opencv_to_llff,
+from insertnerf_cli.cameras.camera import (Cameras, check_shape, intrinsics, llff_to_opencv, opencv_to_llff,
                                     opengl_to_opencv, w2c_to_c2w)
 from scene_fixtures import ring_cameras
 

@@ -7,7 +7,7 @@ import pickle
 import pytest
 import torch
 
-from insertnerf_cli.checkpoint import (CHECKPOINT_VERSION, TrainState, average_weights, bundled_checkpoint,
+from insertnerf_cli.model.checkpoint import (CHECKPOINT_VERSION, TrainState, average_weights, bundled_checkpoint,
                                        export_weights, load_model, read_checkpoint, save_checkpoint)
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import InsertNeRF

@@ -17,15 +17,15 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from insertnerf_cli.cli import cli
-from insertnerf_cli.commands.common import user_errors
+from insertnerf_cli.cli.main import cli
+from insertnerf_cli.cli.commands.common import user_errors
 from insertnerf_cli.config import ModelConfig, config_to_json
 from insertnerf_cli.errors import os_error_message
 from scene_fixtures import known_scene, write_blender, write_nerfstudio
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 REPO = Path(__file__).resolve().parents[1]
-MAIN = "from insertnerf_cli.cli import main; main()"
+MAIN = "from insertnerf_cli.cli.main import main; main()"
 
 
 @pytest.fixture()
@@ -137,7 +137,7 @@ CHILD = r"""
 import json, sys
 from pathlib import Path
 from click.testing import CliRunner
-from insertnerf_cli.cli import cli
+from insertnerf_cli.cli.main import cli
 from insertnerf_cli.training.data import find_scenes
 
 cases, probe = json.loads(sys.argv[1]), Path(sys.argv[2])

@@ -8,8 +8,8 @@ import torch
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.model.aggregate import angular_prior, reweigh
-from insertnerf_cli.rays import rays_from_pixels
-from insertnerf_cli.sampling import RaySamples
+from insertnerf_cli.cameras.rays import rays_from_pixels
+from insertnerf_cli.model.sampling import RaySamples
 from model_fixtures import TINY, flat_views, orbit_cameras
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -11,8 +11,8 @@ from insertnerf_cli.model import InsertNeRF
 from insertnerf_cli.model.aggregate import angular_prior
 from insertnerf_cli.model.consistency import colour_variance, sharpen
 from insertnerf_cli.model.projection import project_samples
-from insertnerf_cli.rays import rays_from_pixels
-from insertnerf_cli.sampling import stratified_samples
+from insertnerf_cli.cameras.rays import rays_from_pixels
+from insertnerf_cli.model.sampling import stratified_samples
 from model_fixtures import FAR, NEAR, RADIUS, TINY, orbit_cameras, sphere_hit, sphere_views
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from insertnerf_cli.cameras import Cameras, intrinsics
-from insertnerf_cli.depth_prior import (PRIOR_FAR_MARGIN, PRIOR_VIEWS, covering_far, guide_weights, prior_depth,
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
+from insertnerf_cli.model.guide import GuideOptions, guide_weights
+from insertnerf_cli.sfm.depth_prior import (PriorOptions, covering_far, prior_depth,
                                         view_prior, view_prior_splats)
-from insertnerf_cli.sampling import RaySamples, importance_samples
+from insertnerf_cli.model.sampling import RaySamples, importance_samples
 from insertnerf_cli.scenes import load_scene, normalize_scene
 from insertnerf_cli.scenes.points import ScenePoints
 from scene_fixtures import known_scene, write_colmap
@@ -53,7 +54,7 @@ def test_guide_weights_moves_a_share_toward_the_prior_and_keeps_the_total() -> N
     weights = torch.zeros(3, 32)
     weights[:, 5] = 0.9  # the coarse pass found a surface near t = 1.6
     prior = torch.tensor([4.0, math.nan, 100.0])  # one usable prior, one missing, one outside the samples
-    guided = guide_weights(weights, t, prior, share=0.75, width=0.05)
+    guided = guide_weights(weights, t, prior, GuideOptions(share=0.75, width=0.05))
     torch.testing.assert_close(guided.sum(-1), weights.sum(-1))
     torch.testing.assert_close(guided[1:], weights[1:])  # no prior / no sample in the band: unchanged
     assert float(guided[0, 5]) == pytest.approx(0.25 * 0.9)
@@ -62,18 +63,18 @@ def test_guide_weights_moves_a_share_toward_the_prior_and_keeps_the_total() -> N
     fine = importance_samples(RaySamples(t[:1].contiguous(), torch.cat([t[:1, :1], t[:1]], -1)), guided[:1], 16,
                               jitter=False, near=t[:1, 0], far=t[:1, -1])
     assert int(((fine.t - 4.0).abs() < 0.4).sum()) >= 10  # most fine samples now sit around the prior
-    assert torch.equal(guide_weights(weights, t, prior, share=0.0), weights)
+    assert torch.equal(guide_weights(weights, t, prior, GuideOptions(share=0.0)), weights)
 
 
 def test_the_far_bound_moves_only_for_points_past_it_and_then_covers_them() -> None:
     prior = torch.full((H, W), 3.0)
-    assert covering_far(2.0, prior) == pytest.approx(3.0 * PRIOR_FAR_MARGIN)  # the band around 3 fits inside
+    assert covering_far(2.0, prior) == pytest.approx(3.0 * GuideOptions().band_reach)  # the band around 3 fits inside
     assert covering_far(10.0, prior) == 10.0
     assert covering_far(3.1, prior) == 3.1  # the points lie inside: the bound stays, though the band reaches past
     assert covering_far(2.0, None) == 2.0 and covering_far(2.0, torch.full((H, W), math.nan)) == 2.0
     stray = prior.clone()
     stray.view(-1)[: H * W // 200] = 100.0  # half a percent of the pixels: stray points do not set the bound
-    assert covering_far(2.0, stray) == pytest.approx(3.0 * PRIOR_FAR_MARGIN)
+    assert covering_far(2.0, stray) == pytest.approx(3.0 * GuideOptions().band_reach)
 
 
 def test_render_draws_its_samples_out_to_points_past_the_scenes_far_bound(tmp_path: Path) -> None:
@@ -105,7 +106,7 @@ def test_render_draws_its_samples_out_to_points_past_the_scenes_far_bound(tmp_pa
         bounds[flag] = far, depth.max(axis=1)
     raised, given = bounds["--sfm-depth"][0], bounds["--no-sfm-depth"][0]
     assert (raised >= given - 1e-9).all() and (raised > given * 1.2).all()  # every frame's bound cut the points
-    assert (raised <= PRIOR_FAR_MARGIN * bounds["--sfm-depth"][1] + 1e-6).all()  # no farther than they need
+    assert (raised <= GuideOptions().band_reach * bounds["--sfm-depth"][1] + 1e-6).all()  # no farther than they need
 
 
 def test_points_seen_from_counts_only_the_allowed_views() -> None:
@@ -135,9 +136,9 @@ def test_a_frames_prior_uses_only_the_points_two_of_its_references_observe() -> 
     depth = view_prior(points, camera_at_origin(), [0, 1, 2])
     torch.testing.assert_close(depth, torch.full((H, W), 4.0, dtype=depth.dtype))
     assert view_prior(points, camera_at_origin(), [0, 3]) is None  # one observer among the references: no point
-    # With more references than PRIOR_VIEWS, one of the nearest PRIOR_VIEWS must observe the point too.
-    many = ScenePoints(xyz, observed + tuple(torch.zeros(0, dtype=torch.int64) for _ in range(PRIOR_VIEWS)))
-    others = list(range(6, 6 + PRIOR_VIEWS - 2))  # references that observe nothing
+    # With more references than PriorOptions().views, one of the nearest PriorOptions().views must observe the point too.
+    many = ScenePoints(xyz, observed + tuple(torch.zeros(0, dtype=torch.int64) for _ in range(PriorOptions().views)))
+    others = list(range(6, 6 + PriorOptions().views - 2))  # references that observe nothing
     assert view_prior(many, camera_at_origin(), [3, 4, *others, 1, 2]) is None  # 1 and 2 both beyond the nearest
     depth = view_prior(many, camera_at_origin(), [3, 1, *others, 2])  # 1 among the nearest, 2 beyond
     torch.testing.assert_close(depth, torch.full((H, W), 4.0, dtype=depth.dtype))
@@ -173,7 +174,7 @@ def test_the_splats_of_a_frames_prior_are_the_pixels_its_points_cover_before_the
     points = ScenePoints(xyz, observed)
     depth, splatted = view_prior_splats(points, camera_at_origin(), [0, 1], pool=[0, 1, 2])
     torch.testing.assert_close(depth, view_prior(points, camera_at_origin(), [0, 1], pool=[0, 1, 2]), equal_nan=True)
-    bare = [prior_depth(xyz[i:i + 1], camera_at_origin(), 0.0) for i in range(2)]
+    bare = [prior_depth(xyz[i:i + 1], camera_at_origin(), PriorOptions(reach_fraction=0.0)) for i in range(2)]
     assert torch.equal(splatted, torch.isfinite(bare[0]) | torch.isfinite(bare[1]))
     assert 0 < int(splatted.sum()) < int(torch.isfinite(depth).sum())
 
@@ -200,7 +201,7 @@ def test_a_colmap_scene_carries_its_points_into_normalised_units(tmp_path: Path)
 def test_render_follows_the_prior_only_where_there_is_one(exact: bool) -> None:
     from model_fixtures import FAR, NEAR, RADIUS, tiny_model_and_views
 
-    from insertnerf_cli.render import EXACT, Shortcuts, render_image
+    from insertnerf_cli.rendering.image_renderer import EXACT, Shortcuts, render_image
 
     model, encoded, camera = tiny_model_and_views(size=12)
     shortcuts = EXACT if exact else Shortcuts()

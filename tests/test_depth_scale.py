@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from test_render_cli import make_checkpoint, make_scene, run
 
-from insertnerf_cli.outputs import (depth_scale_for, depth_to_float, depth_to_uint16, frame_paths, read_depth,
+from insertnerf_cli.exporters.outputs import (depth_scale_for, depth_to_float, depth_to_uint16, frame_paths, read_depth,
                                     write_frame)
 
 pytestmark = pytest.mark.usefixtures("one_thread")

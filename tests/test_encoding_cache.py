@@ -4,8 +4,9 @@ from __future__ import annotations
 import pytest
 import torch
 
+from insertnerf_cli.rendering.options import ColourOptions, RenderOptions
 from insertnerf_cli.model import EncodedViews, InsertNeRF, SourceViews
-from insertnerf_cli.view_renderer import ViewRenderer, colour_size
+from insertnerf_cli.rendering.view_renderer import ViewRenderer, colour_size
 from insertnerf_cli.scenes import load_scene, normalize_scene
 from model_fixtures import TINY, sphere_views  # noqa: F401
 from scene_fixtures import known_scene, write_blender
@@ -65,7 +66,8 @@ def test_colours_come_from_the_photos_at_up_to_twice_the_frame_size(tmp_path):
     photos, _ = scene.load_views([1, 3], 2 * h, 2 * w)
     torch.testing.assert_close(encoded.colours, photos.permute(0, 3, 1, 2))
     assert (encoded.height, encoded.width) == (h, w)
-    assert ViewRenderer(model, scene, (h, w), views=2, colour_scale=1.0)._encoded([3, 1]).colours is None
+    assert ViewRenderer(model, scene, (h, w), views=2,
+                        options=RenderOptions(colours=ColourOptions(scale=1.0)))._encoded([3, 1]).colours is None
 
 
 def test_both_sizes_come_from_one_decode_of_each_photo(tmp_path, monkeypatch):

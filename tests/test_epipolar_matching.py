@@ -5,7 +5,7 @@ import numpy as np
 import pycolmap
 import pytest
 
-from insertnerf_cli.epipolar_matching import MAX_EPIPOLAR_ERROR, epipolar_matches, view_features
+from insertnerf_cli.sfm.epipolar import MAX_EPIPOLAR_ERROR, epipolar_matches, view_features
 
 SIZE, FOCAL, POINTS = 400, 350.0, 60
 
@@ -91,7 +91,7 @@ def test_views_from_one_centre_have_no_epipolar_line_and_no_match() -> None:
 
 
 def _line_in_b(a, b, point: int) -> np.ndarray:
-    from insertnerf_cli.epipolar_matching import essential_matrix
+    from insertnerf_cli.sfm.epipolar import essential_matrix
 
     return essential_matrix(a, b) @ a.rays[point]
 

@@ -10,7 +10,7 @@ import pytest
 from test_render_cli import make_checkpoint, make_scene, ring_cameras, run
 
 from insertnerf_cli.scenes import load_scene
-from insertnerf_cli.views import evenly_spread, held_out_views, nearest_views
+from insertnerf_cli.scenes.views import evenly_spread, held_out_views, nearest_views
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")

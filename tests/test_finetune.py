@@ -18,11 +18,11 @@ from test_render_cli import make_checkpoint, make_scene, run
 
 from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune
 from insertnerf_cli.finetune import loop as finetune_loop
-from insertnerf_cli.checkpoint import load_model
+from insertnerf_cli.model.checkpoint import load_model
 from insertnerf_cli.finetune.data import FrozenFeatures, draw, finetune_scene
 from insertnerf_cli.training.data import ImageCache, decode_uint8
 from insertnerf_cli.scenes import load_scene, normalize_scene
-from insertnerf_cli.views import held_out_views
+from insertnerf_cli.scenes.views import held_out_views
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 REPO = Path(__file__).resolve().parents[1]
@@ -152,7 +152,7 @@ def test_ctrl_c_on_the_command_exits_130_with_the_saved_file(tmp_path, base):
     scene = make_scene(tmp_path / "scene", {"train": 6})
     out = tmp_path / "ft.pt"
     args = ["finetune", scene, "--out", out, "--checkpoint", base, *TINY_RUN, "--steps", 100000]
-    proc = subprocess.Popen([sys.executable, "-c", "from insertnerf_cli.cli import main; main()", *map(str, args)],
+    proc = subprocess.Popen([sys.executable, "-c", "from insertnerf_cli.cli.main import main; main()", *map(str, args)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"})
     try:

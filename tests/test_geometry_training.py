@@ -9,7 +9,7 @@ import torch
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.model.geometry_losses import depth_loss, distortion_loss
-from insertnerf_cli.rays import rays_from_pixels
+from insertnerf_cli.cameras.rays import rays_from_pixels
 from insertnerf_cli.synth import SynthOptions, generate_dataset
 from insertnerf_cli.training import train
 from insertnerf_cli.training.batches import DrawGenerators, StepStream, check_batch_scenes
@@ -131,7 +131,7 @@ def test_training_with_depth_distortion_infinity_and_varying_views(synth_set, tm
 
 
 def test_the_visibility_cue_starts_neutral_and_warm_starts_from_a_model_without_it(tmp_path):
-    from insertnerf_cli.checkpoint import read_checkpoint, save_checkpoint
+    from insertnerf_cli.model.checkpoint import read_checkpoint, save_checkpoint
     from insertnerf_cli.training.warm_start import warm_start
 
     views = flat_views([(0.9, 0.1, 0.1), (0.1, 0.9, 0.1), (0.1, 0.1, 0.9), (0.5, 0.5, 0.1)])

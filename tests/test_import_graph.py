@@ -1,5 +1,6 @@
-"""The package's modules import each other without circles (design.md), deferred imports inside functions
-included: a circle that only a deferred import hides still ties the two modules into one."""
+"""The package's modules import each other without circles, deferred imports inside functions and imports for
+annotations only (``if TYPE_CHECKING:``) included: a circle that only those hide still ties the modules into one.
+And the folders follow the data flow: no stage imports a later one (docs/architecture.md)."""
 from __future__ import annotations
 
 import ast
@@ -13,23 +14,16 @@ def _module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _type_checking_nodes(tree: ast.AST) -> set[int]:
-    """ids of the nodes under ``if TYPE_CHECKING:`` (imports for annotations only, never executed)."""
-    return {id(n) for node in ast.walk(tree) if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
-            for n in ast.walk(node)}
-
-
 def import_graph() -> dict[str, set[str]]:
     """module -> the package modules it imports (from-imports of a submodule count as that submodule)."""
     files = {_module_name(p): p for p in PACKAGE.rglob("*.py")}
     graph: dict[str, set[str]] = {}
     for name, path in files.items():
         tree = ast.parse(path.read_text())
-        skip = _type_checking_nodes(tree)
         package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
         deps: set[str] = set()
         for node in ast.walk(tree):
-            if id(node) in skip or not isinstance(node, ast.ImportFrom):
+            if not isinstance(node, ast.ImportFrom):
                 continue
             if node.level:
                 base = package[:len(package) - node.level + 1]
@@ -81,8 +75,38 @@ def test_cycle_finder_finds_a_circle():
 def test_graph_sees_relative_and_deferred_imports():
     graph = import_graph()
     assert "insertnerf_cli.scenes.images" in graph["insertnerf_cli.scenes.base"]
-    assert "insertnerf_cli.finetune" in graph["insertnerf_cli.render_inputs"]  # imported inside a function
+    assert "insertnerf_cli.finetune" in graph["insertnerf_cli.pipelines.inputs"]
 
 
 def test_no_import_circles():
     assert cycles(import_graph()) == []
+
+
+# The stages in data-flow order: a module may import its own stage and earlier ones, never a later one.
+STAGES = ["errors", "interrupts", "config", "files", "cameras", "metrics", "scenes", "synth", "poses", "model", "sfm",
+          "rendering", "training", "finetune", "exporters", "pipelines", "cli"]
+
+
+def _stage(module: str) -> int:
+    parts = module.split(".")
+    return STAGES.index(parts[1]) if len(parts) > 1 else -1  # the package's own __init__ comes first
+
+
+def test_every_module_belongs_to_a_stage():
+    assert {m.split(".")[1] for m in import_graph() if "." in m} <= set(STAGES)
+
+
+def test_no_stage_imports_a_later_one():
+    later = sorted(f"{module} -> {dep}" for module, deps in import_graph().items() for dep in deps
+                   if _stage(dep) > _stage(module))
+    assert later == []
+
+
+def test_the_model_depends_on_no_render_path_stage():
+    deps = {dep.split(".")[1] for module, ds in import_graph().items() if module.startswith("insertnerf_cli.model")
+            for dep in ds if "." in dep}
+    assert not deps & {"sfm", "rendering", "pipelines", "exporters", "training", "finetune"}
+
+
+def test_the_package_top_holds_few_modules():
+    assert len(list(PACKAGE.glob("*.py"))) <= 8

@@ -18,14 +18,14 @@ import cv2
 import pytest
 from click.testing import CliRunner
 
-from insertnerf_cli.cli import cli
-from insertnerf_cli.lock import LOCK_NAME, OutputLocked, lock_file, lock_output, releases_output_locks
-from insertnerf_cli.outdir import BUNDLED_WEIGHTS_DIR, OutputRecord, foreign_entries, holds_files
+from insertnerf_cli.cli.main import cli
+from insertnerf_cli.files.lock import LOCK_NAME, OutputLocked, lock_file, lock_output, releases_output_locks
+from insertnerf_cli.files.outdir import BUNDLED_WEIGHTS_DIR, OutputRecord, foreign_entries, holds_files
 from test_render_cli import make_checkpoint, make_scene
 
 ROOT = Path(__file__).resolve().parents[1]
-MAIN = "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli import main; main()"
-HOLD = ("import sys, time; from insertnerf_cli.lock import lock_output; lock_output(sys.argv[1], 'render'); "
+MAIN = "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli.main import main; main()"
+HOLD = ("import sys, time; from insertnerf_cli.files.lock import lock_output; lock_output(sys.argv[1], 'render'); "
         "print('held', flush=True); time.sleep(120)")
 
 

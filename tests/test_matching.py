@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from insertnerf_cli.matching import exhaustive_pairs, pairs_written, run_with_progress, sequential_pairs
+from insertnerf_cli.poses.matching import exhaustive_pairs, pairs_written, run_with_progress, sequential_pairs
 
 
 def test_pair_counts() -> None:
@@ -35,7 +35,7 @@ def _writer(db_path: Path, rows: int, fail: bool = False):
 
 
 def test_progress_counts_rows_while_the_matcher_runs(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setattr("insertnerf_cli.matching.POLL_S", 0.1)
+    monkeypatch.setattr("insertnerf_cli.poses.matching.POLL_S", 0.1)
     db_path = tmp_path / "database.db"
     assert pairs_written(db_path) is None  # no database yet
     seen: list[int] = []

@@ -16,7 +16,7 @@ from insertnerf_cli.model.encoder import UNetEncoder
 from insertnerf_cli.model.filter import SamplingFilter
 from insertnerf_cli.model.hypernet import AppearanceHyper, GeometryHyperLayer, count_parameters
 from insertnerf_cli.model.projection import project_samples
-from insertnerf_cli.rays import rays_for_image
+from insertnerf_cli.cameras.rays import rays_for_image
 from model_fixtures import FAR, NEAR, TINY, orbit_cameras, sphere_views  # noqa: F401
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -6,11 +6,14 @@ import math
 
 import torch
 
-from insertnerf_cli.cameras import Cameras
-from insertnerf_cli.model.occlusion import MIN_VISIBLE, NEAR_PARALLAX, OCCLUSION_TOLERANCE, Occlusion, visible
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.model.occlusion import Occlusion, visible
 from insertnerf_cli.model.projection import Projected
-from insertnerf_cli.depth_prior import well_tracked
-from insertnerf_cli.occlusion_maps import MAP_SIZE, near_angle, reference_map
+from insertnerf_cli.sfm.depth_prior import well_tracked
+from insertnerf_cli.sfm.occlusion_maps import OcclusionOptions, near_angle, reference_map
+
+OPTIONS = OcclusionOptions()
+MAP_SIZE = OPTIONS.map_size
 from insertnerf_cli.scenes.points import ScenePoints
 
 WIDTH = HEIGHT = 8
@@ -18,7 +21,8 @@ WIDTH = HEIGHT = 8
 
 def _occlusion(surface: list[float], near: float = 0.0) -> Occlusion:
     depth = torch.tensor(surface, dtype=torch.float64)[:, None, None, None].expand(-1, 1, 4, 4).clone()
-    return Occlusion(depth, torch.full((len(surface),), near, dtype=torch.float64))
+    return Occlusion(depth, torch.full((len(surface),), near, dtype=torch.float64), OPTIONS.tolerance,
+                     OPTIONS.min_visible)
 
 
 def _visible(occlusion: Occlusion, depth: list[float], angle: list[float] | None = None) -> torch.Tensor:
@@ -36,7 +40,7 @@ def test_a_sample_past_a_views_nearer_surface_is_masked_and_one_in_front_is_not(
 
 
 def test_the_tolerance_keeps_a_sample_just_behind_the_surface():
-    inside, past = 1.0 + 0.9 * OCCLUSION_TOLERANCE, 1.0 + 1.1 * OCCLUSION_TOLERANCE
+    inside, past = 1.0 + 0.9 * OPTIONS.tolerance, 1.0 + 1.1 * OPTIONS.tolerance
     assert _visible(_occlusion([3.0, 3.0, 1.0]), [2.0, 2.0, inside]).tolist() == [1.0, 1.0, 1.0]
     assert _visible(_occlusion([3.0, 3.0, 1.0]), [2.0, 2.0, past]).tolist() == [1.0, 1.0, 0.0]
 
@@ -49,7 +53,7 @@ def test_a_view_nearly_along_the_query_ray_is_never_masked():
 
 def test_a_sample_too_few_views_pass_keeps_every_view():
     # Behind every view's surface (a sample behind a forward-facing scene's wall): the test would leave it unseen.
-    assert MIN_VISIBLE >= 2
+    assert OPTIONS.min_visible >= 2
     seen = _visible(_occlusion([1.0, 1.0, 1.0]), [2.0, 2.0, 2.0])
     assert seen.tolist() == [1.0, 1.0, 1.0]
     one = _visible(_occlusion([3.0, 1.0, 1.0]), [2.0, 2.0, 2.0])
@@ -98,17 +102,17 @@ def test_a_views_map_holds_the_well_tracked_points_it_observes():
 def test_near_angles_follow_the_lens():
     big = _camera(0.0, size=4 * MAP_SIZE)
     # focal = long side: a 53-degree lens; twice the focal length halves the angle.
-    assert torch.allclose(near_angle(big), torch.tensor([NEAR_PARALLAX]))
+    assert torch.allclose(near_angle(big), torch.tensor([OPTIONS.near_parallax]))
     long_lens = _camera(0.0, size=4 * MAP_SIZE, focal=8 * MAP_SIZE)
-    assert torch.allclose(near_angle(long_lens), torch.tensor([NEAR_PARALLAX / 2]))
+    assert torch.allclose(near_angle(long_lens), torch.tensor([OPTIONS.near_parallax / 2]))
 
 
 def test_render_hands_the_generator_each_references_map_in_their_order(tmp_path, monkeypatch):
     from test_render_cli import make_checkpoint
 
-    import insertnerf_cli.render as render_module
+    import insertnerf_cli.rendering.view_renderer as render_module
     from insertnerf_cli.scenes import load_scene, normalize_scene
-    from insertnerf_cli.view_renderer import ViewRenderer, load_model
+    from insertnerf_cli.rendering.view_renderer import ViewRenderer, load_model
     from scene_fixtures import known_scene, write_colmap
 
     scene, _ = normalize_scene(load_scene(write_colmap(tmp_path / "scene", known_scene(9))))
@@ -119,8 +123,8 @@ def test_render_hands_the_generator_each_references_map_in_their_order(tmp_path,
         m, encoded, *a, **k))
     camera = scene.cameras.subset([4]).rescale(16, 16)
     with torch.inference_mode():
-        for occlusion in (True, False):
-            renderer = ViewRenderer(model, scene, (16, 16), views=3, occlusion=occlusion)
+        for sfm_depth in (True, False):  # the maps come with the SfM points
+            renderer = ViewRenderer(model, scene, (16, 16), views=3, sfm_depth=sfm_depth)
             _, refs = renderer.render(camera, float(scene.near[4]), float(scene.far[4]), [4])
     with_maps, without = handed
     assert without.occlusion is None

@@ -15,9 +15,9 @@ from click.testing import CliRunner
 from test_render_cli import _render, make_checkpoint, make_scene
 from test_train import cli_args, tiny_config, write_scene  # noqa: F401  (tiny_config is a fixture)
 
-from insertnerf_cli.cli import cli
-from insertnerf_cli.outdir import RECORD_NAME, OutputRecord
-from insertnerf_cli.poses_io import remove_stale_staging, staging_folder
+from insertnerf_cli.cli.main import cli
+from insertnerf_cli.files.outdir import RECORD_NAME, OutputRecord
+from insertnerf_cli.poses.folder import remove_stale_staging, staging_folder
 from insertnerf_cli.synth import SynthOptions, build_dataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -256,7 +256,7 @@ def test_output_whose_parent_is_a_file_is_one_line_for_every_command(scene_and_c
 _AS_NOBODY = """
 import json, sys
 from click.testing import CliRunner
-from insertnerf_cli.cli import cli
+from insertnerf_cli.cli.main import cli
 scene, ckpt, ro = sys.argv[1:4]
 out = {}
 for name, args in {"eval": ["eval", scene, "--json", ro + "/scores.json"],

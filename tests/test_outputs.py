@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from insertnerf_cli.cameras import Cameras, intrinsics
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.errors import UserError
-from insertnerf_cli.eval_outputs import side_by_side
-from insertnerf_cli.outputs import (depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths, to_uint8, video_codec,
+from insertnerf_cli.exporters.eval_outputs import side_by_side
+from insertnerf_cli.exporters.outputs import (depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths, to_uint8, video_codec,
                                     write_cameras_json, write_frame, write_png, write_video)
 
 

@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
-from insertnerf_cli.rays import rays_for_image
-from insertnerf_cli.compositing import psnr
-from insertnerf_cli.render import render_image
+from insertnerf_cli.cameras.rays import rays_for_image
+from insertnerf_cli.model.compositing import psnr
+from insertnerf_cli.rendering.image_renderer import render_image
 from model_fixtures import FAR, NEAR, TINY, orbit_cameras, sphere_images  # noqa: F401
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -10,8 +10,8 @@ from urllib.parse import unquote
 import pytest
 from test_render_cli import make_checkpoint, make_scene, run
 
-from insertnerf_cli.outdir import OutputRecord
-from insertnerf_cli.report.svg import ViewAxes, line_chart
+from insertnerf_cli.files.outdir import OutputRecord
+from insertnerf_cli.exporters.report.svg import ViewAxes, line_chart
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 _REFERENCE = re.compile(r'(?:src|href|poster)="([^"]*)"')

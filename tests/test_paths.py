@@ -4,9 +4,9 @@ import math
 import pytest
 import torch
 
-from insertnerf_cli.cameras import Cameras, intrinsics
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.errors import UserError
-from insertnerf_cli.paths import (default_path_kind, focus_point, input_path, look_at, make_path, mean_up,
+from insertnerf_cli.rendering.camera_paths import (default_path_kind, focus_point, input_path, look_at, make_path, mean_up,
                                   orbit_path, spiral_path, with_reference_bounds)
 
 UP = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)

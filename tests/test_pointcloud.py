@@ -9,8 +9,8 @@ import torch
 import trimesh
 from test_render_cli import make_checkpoint, make_scene, run
 
-from insertnerf_cli.cameras import Cameras, intrinsics
-from insertnerf_cli.pointcloud import frame_points, subsample
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
+from insertnerf_cli.exporters.pointcloud import frame_points, subsample
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -61,8 +61,8 @@ def test_render_pointcloud_loads_with_trimesh_in_the_scene_units(tmp_path):
 def test_no_valid_depth_gives_an_empty_cloud_that_still_loads(tmp_path):
     import imageio.v3 as iio
 
-    from insertnerf_cli.outputs import frame_paths, write_frame
-    from insertnerf_cli.pointcloud import write_pointcloud
+    from insertnerf_cli.exporters.outputs import frame_paths, write_frame
+    from insertnerf_cli.exporters.pointcloud import write_pointcloud
 
     paths = frame_paths(tmp_path, 0)
     write_frame(paths, np.zeros((6, 8, 3)), np.zeros((6, 8), np.uint16), np.zeros((6, 8, 3), np.uint8))

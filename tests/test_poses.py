@@ -14,16 +14,16 @@ import torch
 import trimesh
 from click.testing import CliRunner
 
-from insertnerf_cli.cameras import Cameras, intrinsics
-from insertnerf_cli.cli import cli
-from insertnerf_cli.colmap import PosesOptions, estimate_poses
-from insertnerf_cli.commands.poses import default_out
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
+from insertnerf_cli.cli.main import cli
+from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses
+from insertnerf_cli.cli.commands.poses import default_out
 from insertnerf_cli.errors import UserError
-from insertnerf_cli.matching import exhaustive_pairs, pairs_written
-from insertnerf_cli.posecheck import (CheckLimits, PairMatches, check_relative_poses, rotation_angle_deg,
+from insertnerf_cli.poses.matching import exhaustive_pairs, pairs_written
+from insertnerf_cli.poses.check import (CheckLimits, PairMatches, check_relative_poses, rotation_angle_deg,
                                       torn_links)
-from insertnerf_cli.poses_io import read_inputs
-from insertnerf_cli.preview import frustum_mesh, write_camera_frustums, write_point_cloud
+from insertnerf_cli.poses.folder import read_inputs
+from insertnerf_cli.poses.preview import frustum_mesh, write_camera_frustums, write_point_cloud
 from insertnerf_cli.scenes import load_scene
 from scene_fixtures import bench_module
 

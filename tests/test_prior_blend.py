@@ -1,18 +1,22 @@
-"""Issue 27, round 28: pixels whose references agree better at the SfM depth take their blend there (prior_blend)."""
+"""Pixels whose references agree better at the SfM depth take their blend there (rendering/prior_blend.py)."""
 from __future__ import annotations
 
 import pytest
 import torch
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
-from insertnerf_cli.model.occlusion import MIN_VISIBLE, Occlusion
-from insertnerf_cli.prior_blend import (BACKGROUND_QUANTILE, FILL_POWER, MARGIN, background_plane, blend,
+from insertnerf_cli.model.occlusion import Occlusion
+from insertnerf_cli.rendering.prior_blend import (BlendOptions, background_plane, blend,
                                         blend_at_prior, feathered, mix_share, reference_colours, smooth_fill)
-from insertnerf_cli.rays import rays_for_image
-from insertnerf_cli.render import ImageOutput
+from insertnerf_cli.cameras.rays import rays_for_image
+from insertnerf_cli.rendering.image_renderer import ImageOutput
+from insertnerf_cli.sfm.occlusion_maps import OcclusionOptions
 from model_fixtures import FAR, TINY, orbit_cameras, sphere_hit, sphere_images
 
 pytestmark = pytest.mark.usefixtures("one_thread")
+
+BLEND = BlendOptions()
+OCCLUSION = OcclusionOptions()
 
 SIZE = 32
 
@@ -113,13 +117,13 @@ def test_the_mix_weighs_each_depth_inversely_to_its_variance_squared():
     at_prior = torch.tensor([1.0, 1.0, 2.0, 0.0, 0.0, 3.0])
     at_render = torch.tensor([1.0, 2.0, 1.0, 0.0, 5.0, 0.0])
     expected = torch.tensor([0.5, 0.8, 0.2, 0.0, 1.0, 0.0])  # both agree perfectly: the frame's colour
-    torch.testing.assert_close(mix_share(at_prior, at_render), expected)
+    torch.testing.assert_close(mix_share(at_prior, at_render, BLEND.mix_power), expected)
 
 
 def test_the_fills_mix_passes_one_half_at_the_margin_and_is_steep_around_it():
-    ratio = torch.tensor([0.25, 0.5, 1.0, 2.0, 4.0])  # v_render / (MARGIN v_prior)
-    share = mix_share(torch.full_like(ratio, 0.01), 0.01 * MARGIN * ratio, FILL_POWER, MARGIN)
-    torch.testing.assert_close(share, ratio ** FILL_POWER / (ratio ** FILL_POWER + 1))
+    ratio = torch.tensor([0.25, 0.5, 1.0, 2.0, 4.0])  # v_render / (BLEND.margin v_prior)
+    share = mix_share(torch.full_like(ratio, 0.01), 0.01 * BLEND.margin * ratio, BLEND.fill_power, BLEND.margin)
+    torch.testing.assert_close(share, ratio ** BLEND.fill_power / (ratio ** BLEND.fill_power + 1))
     assert share[2] == pytest.approx(0.5)
     assert share[1] < 0.15 and share[3] > 0.85  # a factor 2 either side: nearly the all-or-nothing rule
 
@@ -208,13 +212,14 @@ def test_the_blends_lookup_drops_a_reference_whose_map_shows_a_nearer_surface(sc
     views = encoded.images.shape[0]
     surface = torch.full((views, 1, 4, 4), torch.inf, dtype=torch.float64)
     surface[0] = 0.1  # view 0's own points: a surface right in front of it everywhere
-    hidden = encoded.with_occlusion(Occlusion(surface, torch.zeros(views, dtype=torch.float64)))
+    hidden = encoded.with_occlusion(Occlusion(surface, torch.zeros(views, dtype=torch.float64), OCCLUSION.tolerance,
+                                                     OCCLUSION.min_visible))
     one = torch.ones(1)
     rays = rays_for_image(camera.to(dtype=encoded.images.dtype), one, one)
     prior = depth.reshape(-1)
     plain, occluded = (reference_colours(e, rays, prior).mask[:, 0] for e in (encoded, hidden))  # [V, R]
-    # Where fewer than MIN_VISIBLE views would be left, every view that sees it keeps it (model.occlusion.visible).
-    sees = (plain[0] > 0) & (plain[1:].sum(dim=0) >= MIN_VISIBLE)
+    # Where fewer than OCCLUSION.min_visible views would be left, every view that sees it keeps it (model.occlusion.visible).
+    sees = (plain[0] > 0) & (plain[1:].sum(dim=0) >= OCCLUSION.min_visible)
     assert sees.sum() > 0.2 * torch.isfinite(prior).sum()
     assert not occluded[0][sees].any()
     assert torch.equal(occluded[1:], plain[1:])
@@ -223,7 +228,7 @@ def test_the_blends_lookup_drops_a_reference_whose_map_shows_a_nearer_surface(sc
 def test_the_background_plane_is_a_high_quantile_of_the_priors_depths_within_the_far_bound():
     prior = torch.full((10, 20), torch.nan)
     prior.view(-1)[:100] = torch.arange(1, 101, dtype=torch.float32)
-    assert background_plane(prior, far=50.0) == pytest.approx(round(BACKGROUND_QUANTILE * 50))
+    assert background_plane(prior, far=50.0) == pytest.approx(round(BLEND.background_quantile * 50))
     assert background_plane(prior, far=0.5) is None
     assert background_plane(torch.full((4, 4), torch.nan), far=10.0) is None
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from insertnerf_cli.rays import rays_for_image
-from insertnerf_cli.compositing import composite, composite_weights, median_depth
-from insertnerf_cli.render import EXACT, render_image
-from insertnerf_cli.sampling import stratified_samples
+from insertnerf_cli.cameras.rays import rays_for_image
+from insertnerf_cli.model.compositing import composite, composite_weights, median_depth
+from insertnerf_cli.rendering.image_renderer import EXACT, render_image
+from insertnerf_cli.model.sampling import stratified_samples
 from model_fixtures import FAR, NEAR, orbit_cameras, tiny_model_and_views
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -12,13 +12,13 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from insertnerf_cli.cameras import Cameras, intrinsics
-from insertnerf_cli.checkpoint import bundled_checkpoint, checkpoint_sha256, save_checkpoint
-from insertnerf_cli.cli import cli
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, checkpoint_sha256, save_checkpoint
+from insertnerf_cli.cli.main import cli
 from insertnerf_cli.config import ModelConfig
 from insertnerf_cli.model import InsertNeRF
-from insertnerf_cli.outputs import STATE_FILE, depth_scale_for, video_codec
-from insertnerf_cli.paths import look_at
+from insertnerf_cli.exporters.outputs import STATE_FILE, depth_scale_for, video_codec
+from insertnerf_cli.rendering.camera_paths import look_at
 from insertnerf_cli.scenes import write_blender_transforms
 
 HEIGHT, WIDTH = 24, 32

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from test_render_cli import make_checkpoint, make_scene, run
 
-from insertnerf_cli.render_inputs import unposed_photos
+from insertnerf_cli.pipelines.inputs import unposed_photos
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -7,9 +7,9 @@ import dataclasses
 import pytest
 import torch
 
-from insertnerf_cli.checkpoint import bundled_checkpoint, load_model
-from insertnerf_cli.compositing import psnr
-from insertnerf_cli.render import EXACT, PixelGrid, Shortcuts, fine_levels, render_image
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model
+from insertnerf_cli.model.compositing import psnr
+from insertnerf_cli.rendering.image_renderer import EXACT, PixelGrid, Shortcuts, fine_levels, render_image
 from model_fixtures import (FAR, NEAR, TINY, orbit_cameras, sphere_images, sphere_views,  # noqa: F401
                             tiny_model_and_views)
 

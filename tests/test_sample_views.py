@@ -7,11 +7,11 @@ import dataclasses
 import pytest
 import torch
 
-from insertnerf_cli.cameras import Cameras
+from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.config import ModelConfig, config_from_json, config_to_json
 from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.model.projection import Projected, ray_angle
-from insertnerf_cli.rays import rays_from_pixels
+from insertnerf_cli.cameras.rays import rays_from_pixels
 from model_fixtures import RADIUS, TINY, orbit_cameras
 
 pytestmark = pytest.mark.usefixtures("one_thread")

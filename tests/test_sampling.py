@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import torch
 
-from insertnerf_cli.rays import Rays
-from insertnerf_cli.sampling import importance_samples, stratified_samples
+from insertnerf_cli.cameras.rays import Rays
+from insertnerf_cli.model.sampling import importance_samples, stratified_samples
 
 R = 6
 

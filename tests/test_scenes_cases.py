@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from insertnerf_cli.cameras import Cameras, intrinsics
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.scenes import SceneError, load_scene, write_blender_transforms, write_nerfstudio_transforms
 from insertnerf_cli.scenes.images import undistort
 from scene_fixtures import (HEIGHT, WIDTH, known_scene, look_at, pattern_image, write_blender, write_colmap,

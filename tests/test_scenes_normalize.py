@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from insertnerf_cli.cameras import Cameras
+from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.scenes import Similarity, load_scene, normalize_scene
 from insertnerf_cli.scenes.geometry import detect_layout, focus_point, folded_walk_warning, walk_jumps
 from insertnerf_cli.scenes.normalize import FORWARD_NEAR_FRACTION, OBJECT_RADIUS

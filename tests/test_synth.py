@@ -15,7 +15,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from insertnerf_cli.cli import cli
+from insertnerf_cli.cli.main import cli
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.synth import CaptureOptions, SceneSpec, SynthOptions, build_dataset, generate_dataset
@@ -189,7 +189,7 @@ def test_textures_tile_and_prefilter():
 
 
 def test_look_at_is_a_rotation_that_centres_the_target():
-    from insertnerf_cli.cameras import Cameras, intrinsics
+    from insertnerf_cli.cameras.camera import Cameras, intrinsics
 
     eyes = np.array([[3.0, 0.5, 1.0], [0.0, 0.0, -4.0]])
     c2w = look_at(eyes, np.zeros((2, 3)), np.array([0.1, 0.0]))
@@ -238,7 +238,7 @@ def test_synth_workers_leave_ctrl_c_to_the_parent():
 def test_a_run_with_workers_ends_without_a_stack_trace_from_them(tmp_path):
     # The pool ends its workers with SIGTERM; forked from a parent that imported pycolmap (every command is
     # imported), each printed glog's "*** SIGTERM received ... stack trace" until the worker reset the signal.
-    command = "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli import main; main()"
+    command = "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli.main import main; main()"
     done = subprocess.run([sys.executable, "-c", command, "synth", str(tmp_path / "s"), "--scenes", "3", "--views",
                            "2", "--test-views", "1", "--resolution", "16", "--workers", "2"],
                           capture_output=True, text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})

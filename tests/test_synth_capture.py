@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from insertnerf_cli.cli import cli
+from insertnerf_cli.cli.main import cli
 from insertnerf_cli.synth.capture import CaptureOptions, CaptureSettings, develop, draw_settings, vignette
 from insertnerf_cli.synth.textures import linear_to_srgb, srgb_to_linear
 

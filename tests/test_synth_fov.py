@@ -9,7 +9,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from insertnerf_cli.cli import cli
+from insertnerf_cli.cli.main import cli
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.synth import SceneSpec, SynthOptions, generate_dataset

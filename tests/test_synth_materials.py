@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from insertnerf_cli.cameras import Cameras, intrinsics
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.synth.drawing import flat_texture, sky_image
 from insertnerf_cli.synth.geometry import Shape, trimesh_box
 from insertnerf_cli.synth.layouts import look_at

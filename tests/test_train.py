@@ -15,9 +15,9 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from insertnerf_cli.cameras import Cameras, intrinsics
-from insertnerf_cli.checkpoint import load_model, read_checkpoint
-from insertnerf_cli.cli import cli
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
+from insertnerf_cli.model.checkpoint import load_model, read_checkpoint
+from insertnerf_cli.cli.main import cli
 from insertnerf_cli.config import ModelConfig, config_to_json
 from insertnerf_cli.model import InsertNeRF
 from insertnerf_cli.scenes import write_blender_transforms

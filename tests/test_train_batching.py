@@ -14,8 +14,8 @@ import torch
 import torch.multiprocessing as mp
 from click.testing import CliRunner
 
-from insertnerf_cli.checkpoint import read_checkpoint
-from insertnerf_cli.cli import cli
+from insertnerf_cli.model.checkpoint import read_checkpoint
+from insertnerf_cli.cli.main import cli
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import InsertNeRF
 from insertnerf_cli.scenes import write_blender_transforms

@@ -8,7 +8,7 @@ import torch
 from click.testing import CliRunner
 from test_train import cli_args, dataset, tiny_config  # noqa: F401  (fixtures)
 
-from insertnerf_cli.cli import cli
+from insertnerf_cli.cli.main import cli
 
 
 def _weights(run) -> dict[str, torch.Tensor]:

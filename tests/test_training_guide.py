@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from insertnerf_cli.model import InsertNeRF
-from insertnerf_cli.rays import rays_from_pixels
+from insertnerf_cli.cameras.rays import rays_from_pixels
 from insertnerf_cli.training import train
 from insertnerf_cli.training.guide import COVERAGE, RELATIVE_ERROR, WRONG, simulated_prior
 from model_fixtures import TINY, flat_views, orbit_cameras

@@ -10,7 +10,7 @@ import trimesh
 
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
-from insertnerf_cli.triangulate import TriangulateOptions, triangulate_points, with_points
+from insertnerf_cli.sfm.triangulate import TriangulateOptions, triangulate_points, with_points
 from scene_fixtures import bench_module
 
 VIEWS, SIZE = 8, 160

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from insertnerf_cli.views import ViewSampling, nearest_views, sample_training_views, view_distances
+from insertnerf_cli.scenes.views import ViewSampling, nearest_views, sample_training_views, view_distances
 
 
 def look_at(eye: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

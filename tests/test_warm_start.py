@@ -8,8 +8,8 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from insertnerf_cli.checkpoint import read_checkpoint, save_checkpoint
-from insertnerf_cli.cli import cli
+from insertnerf_cli.model.checkpoint import read_checkpoint, save_checkpoint
+from insertnerf_cli.cli.main import cli
 from insertnerf_cli.config import config_to_json
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import InsertNeRF

@@ -15,9 +15,9 @@ from test_output_safety import one_line_error, snapshot, trained_run
 from test_render_cli import _render, make_checkpoint, make_scene
 from test_train import cli_args, tiny_config  # noqa: F401  (tiny_config is a fixture)
 
-from insertnerf_cli.atomic import WriteError, write_bytes
-from insertnerf_cli.checkpoint import read_checkpoint
-from insertnerf_cli.cli import cli
+from insertnerf_cli.files.atomic import WriteError, write_bytes
+from insertnerf_cli.model.checkpoint import read_checkpoint
+from insertnerf_cli.cli.main import cli
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

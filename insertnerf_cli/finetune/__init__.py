@@ -2,7 +2,7 @@
 
 ``finetune(scene_dir, out, FinetuneConfig, device) -> FinetuneResult``; the views `eval` holds out are never used.
 """
-from .loop import FinetuneConfig, FinetuneResult, Progress, check_out_file, finetune
-from .render_cache import cached_finetune
+from insertnerf_cli.finetune.loop import FinetuneConfig, FinetuneResult, Progress, check_out_file, finetune
+from insertnerf_cli.finetune.render_cache import cached_finetune
 
 __all__ = ["FinetuneConfig", "FinetuneResult", "Progress", "cached_finetune", "check_out_file", "finetune"]

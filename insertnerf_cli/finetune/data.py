@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..depth_prior import PRIOR_VIEWS, covering_far, view_prior
-from ..errors import UserError
-from ..model import EncodedViews, InsertNeRF, SourceViews
-from ..view_renderer import colour_size
-from ..views import held_out_views, nearest_views
-from ..training.data import ImageCache, TrainScene, ViewDraw, draw_training_views, prepare_scene, to_uint8
+from insertnerf_cli.sfm.depth_prior import PriorOptions, covering_far, view_prior
+from insertnerf_cli.errors import UserError
+from insertnerf_cli.model import EncodedViews, InsertNeRF, SourceViews
+from insertnerf_cli.rendering.view_renderer import colour_size
+from insertnerf_cli.scenes.views import held_out_views, nearest_views
+from insertnerf_cli.training.data import ImageCache, TrainScene, ViewDraw, draw_training_views, prepare_scene, to_uint8
 
 # Views encoded at once when the frozen encoder's features are precomputed (bounds peak memory).
 _ENCODE_BATCH = 8
@@ -78,10 +78,10 @@ class FrozenFeatures:
 
 class TargetPriors:
     """The SfM depth prior of every usable view at the fine-tuning size, made once, so that each step's fine
-    samples are placed as render places them (depth_prior; round 20, 5 minutes, median of 3 seeds: flower +0.24
-    dB, room level).
+    samples are placed as render places them (depth_prior): a gain on some captures and no loss on others
+    (measured: docs/research-log.md, Fine-tuning).
 
-    A view's prior is made as render makes a novel view's: from the points two of its PRIOR_VIEWS nearest other
+    A view's prior is made as render makes a novel view's: from the points two of its PriorOptions.views nearest other
     usable views observe, never from the view's own observations. ``far`` [N] holds the scene's far bounds, each
     usable view's raised where its points lie past it, as render raises a frame's (depth_prior.covering_far).
     """
@@ -94,7 +94,8 @@ class TargetPriors:
             others = [i for i in scene.train_ids if i != target]
             prior = None
             if points is not None and others:
-                order = nearest_views(scene.cameras.c2w[target], scene.cameras.c2w[others], PRIOR_VIEWS, scene.method)
+                order = nearest_views(scene.cameras.c2w[target], scene.cameras.c2w[others], PriorOptions().views,
+                                      scene.method)
                 prior = view_prior(points, scene.cameras.subset([target]), [others[i] for i in order], others)
                 self.far[target] = covering_far(float(scene.far[target]), prior)
             self.flat[target] = None if prior is None else prior.reshape(-1).to(device, torch.float32)  # [H * W]

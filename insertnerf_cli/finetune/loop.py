@@ -14,19 +14,19 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..checkpoint import bundled_checkpoint, build_model, read_checkpoint, save_checkpoint
-from ..config import DEFAULT_RESOLUTION, DEFAULT_VIEWS, ModelConfig
-from ..errors import UserError
-from ..lock import lock_output, releases_output_locks
-from ..outdir import check_output
-from ..scenes.points import ScenePoints
-from ..model import InsertNeRF, LossTerms
-from ..training.data import ImageCache, TrainScene, make_batch
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, build_model, read_checkpoint, save_checkpoint
+from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS, ModelConfig
+from insertnerf_cli.errors import UserError
+from insertnerf_cli.files.lock import lock_output, releases_output_locks
+from insertnerf_cli.files.outdir import check_output
+from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.model import InsertNeRF, LossTerms
+from insertnerf_cli.training.data import ImageCache, TrainScene, make_batch
 # Training's Ctrl-C rule (finish the step, save; a second Ctrl-C stops at once), shared rather than copied.
-from ..training.loop import _StopRequest
-from ..training.session import Objective
-from ..triangulate import with_points
-from .data import FrozenFeatures, TargetPriors, draw, finetune_scene
+from insertnerf_cli.training.loop import _StopRequest
+from insertnerf_cli.training.session import Objective
+from insertnerf_cli.sfm.triangulate import with_points
+from insertnerf_cli.finetune.data import FrozenFeatures, TargetPriors, draw, finetune_scene
 
 Say = Callable[[str], None]
 _CACHE_BYTES = 1 << 30  # uint8 images at the fine-tuning size; a 256-px scene of 100 views needs ~20 MB
@@ -49,9 +49,8 @@ class FinetuneConfig:
             from the usable views first when it has none); data.TargetPriors.
         colour_scale: look the sources' colours up in the photos at up to this many times the fine-tuning size
             (encoder frozen only). 1, at that size, as the generator was trained: render and eval of the result
-            still blend colours from view_renderer.COLOUR_SCALE, and 5 minutes with 2 here scored room level with
-            1 (29.55 dB against 29.49-29.67) and, while the finer colours also fed the network, 0.36 dB lower
-            (docs/model-card.md round 23).
+            still blend colours at RenderOptions.colours.scale, and a larger scale here gained nothing (measured:
+            docs/research-log.md, Colour lookups and render shortcuts).
     """
 
     minutes: float | None = 5.0

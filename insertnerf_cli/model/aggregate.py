@@ -22,11 +22,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .projection import ray_angle
+from insertnerf_cli.model.projection import ray_angle
 
 
 # Radians: below a thousandth of a pixel's angle at any usable resolution; keeps 1 / angle finite.
 _MIN_ANGLE = 1e-6
+# Where fewer views than K see a sample, the lumigraph's cut-off angle a_K is this many times the widest angle
+# among those that do: past 1, so that even the widest keeps a share of the weight.
+FEWER_VIEWS_CUTOFF = 1.5
 
 
 def channel_linear(layer: nn.Linear, x: Tensor, add: Tensor | None = None) -> Tensor:
@@ -68,9 +71,10 @@ def angular_prior(ray_diff: Tensor, mask: Tensor, views: int, angle: Tensor | No
     A view's weight is (1 - a / a_K) / a, a the angle between its ray through the sample and the query ray, a_K
     the ``views``-th smallest angle among the views that see the sample: the nearest views in angle dominate and
     the K-th and farther get none, whatever the capture's spread (forward-facing grids differ by a degree, orbits
-    by tens). Where fewer than K views see the sample, a_K is 1.5 x their largest angle, so each keeps a share.
-    Learned weights are near-uniform on real photos (docs/model-card.md, issue 27): without this, every added
-    view pulls a pixel's colour toward what the farther views see. Cameras only, so no gradient.
+    by tens). Where fewer than K views see the sample, a_K is FEWER_VIEWS_CUTOFF x their largest angle,
+    so each keeps a share.
+    Learned weights are near-uniform on real photos (docs/research-log.md, Reference views): without this, every
+    added view pulls a pixel's colour toward what the farther views see. Cameras only, so no gradient.
     """
     with torch.no_grad():
         angle = ray_angle(ray_diff) if angle is None else angle  # [V, 1, P]
@@ -81,7 +85,7 @@ def angular_prior(ray_diff: Tensor, mask: Tensor, views: int, angle: Tensor | No
         kth = angle[:, 0].T.contiguous().topk(count, dim=1, largest=False).values[:, -1][None, None]  # [1, 1, P]
         widest = torch.where(mask > 0, angle, torch.zeros_like(angle)).amax(dim=0, keepdim=True)
         fewer = mask.sum(dim=0, keepdim=True) < views
-        kth = torch.where(fewer, 1.5 * widest, kth).clamp(min=_MIN_ANGLE)
+        kth = torch.where(fewer, FEWER_VIEWS_CUTOFF * widest, kth).clamp(min=_MIN_ANGLE)
         # A view on the query ray itself (angle 0) takes (almost) all the weight, as it should.
         prior = (1.0 - angle / kth).clamp(min=0.0) / (angle + _MIN_ANGLE) * mask
         return prior / prior.sum(dim=0, keepdim=True).clamp(min=1e-12)

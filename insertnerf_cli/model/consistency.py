@@ -1,18 +1,18 @@
 """Photo-consistency: how much the reference views agree on a sample's colour, and compositing weights sharpened
-toward the samples where they agree (a plane-sweep stereo cue, issue 27).
+toward the samples where they agree (a plane-sweep stereo cue).
 
 A surface point looks alike from nearby views; a point in empty space projects onto unrelated pixels. The
 generator learns this from synthetic scenes only, and on real photos its weights spread over depths where the views
-disagree (a doubled edge, a pale haze: docs/model-card.md, issue 27). The cue below needs no training: the
-variance of the reference colours over the views nearest in angle, turned into a per-ray distribution over the
-samples and multiplied into the learned weights, keeping each ray's opacity.
+disagree (a doubled edge, a pale haze: docs/research-log.md, Training data and the generator). The cue below needs
+no training: the variance of the reference colours over the views nearest in angle, turned into a per-ray
+distribution over the samples and multiplied into the learned weights, keeping each ray's opacity.
 """
 from __future__ import annotations
 
 import torch
 from torch import Tensor
 
-from .aggregate import weighted_moments
+from insertnerf_cli.model.aggregate import weighted_moments
 
 
 def colour_variance(colours: Tensor, mask: Tensor, prior: Tensor, samples: int) -> Tensor:

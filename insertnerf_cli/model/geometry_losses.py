@@ -1,4 +1,4 @@
-"""Geometry supervision of the compositing weights (issue 27): where the weight mass of a ray should sit.
+"""Geometry supervision of the compositing weights: where the weight mass of a ray should sit.
 
 Two terms, both on the weights w [R, S] of a pass and its bins (edges [R, S + 1]):
 - depth: synth writes the exact z-depth of every pixel, so the weight mass should sit in the bin that holds the
@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..cameras import check_shape
+from insertnerf_cli.cameras.camera import check_shape
 
 NO_SURFACE = 0.0  # synth's depth files say "no surface" with 0
 

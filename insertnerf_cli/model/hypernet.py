@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .filter import SamplingFilter
+from insertnerf_cli.model.filter import SamplingFilter
 
 
 class RayWeights(nn.Module):

@@ -4,18 +4,18 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from ..config import ModelConfig
-from ..rays import Rays
-from ..compositing import Composite, composite, composite_weights
-from ..depth_prior import guide_weights
-from ..sampling import RaySamples, importance_samples, stratified_samples
-from .aggregate import ScaleAggregator, angular_prior, reweigh
-from .consistency import colour_variance, sharpen
-from .encoder import UNetEncoder, pad_to_stride
-from .losses import compute_losses
-from .nerf import NeRFHead
-from .projection import project_samples, projection_matrices, ray_angle
-from .types import EncodedViews, LossTerms, RenderOutput, SampleFeatures, SourceViews
+from insertnerf_cli.config import ModelConfig
+from insertnerf_cli.cameras.rays import Rays
+from insertnerf_cli.model.compositing import Composite, composite, composite_weights
+from insertnerf_cli.model.guide import guide_weights
+from insertnerf_cli.model.sampling import RaySamples, importance_samples, stratified_samples
+from insertnerf_cli.model.aggregate import ScaleAggregator, angular_prior, reweigh
+from insertnerf_cli.model.consistency import colour_variance, sharpen
+from insertnerf_cli.model.encoder import UNetEncoder, pad_to_stride
+from insertnerf_cli.model.losses import compute_losses
+from insertnerf_cli.model.nerf import NeRFHead
+from insertnerf_cli.model.projection import project_samples, projection_matrices, ray_angle
+from insertnerf_cli.model.types import EncodedViews, LossTerms, RenderOutput, SampleFeatures, SourceViews
 
 # The infinity sample's depth in units of the ray's far bound (InsertNeRF.backdrop).
 _INFINITY_FACTOR = 1e4
@@ -44,7 +44,7 @@ class InsertNeRF(nn.Module):
         """Run the per-scale aggregators through torch.compile, in place (the state dict is unchanged).
 
         The aggregation is the memory-bound part of a step: element-wise passes over [V, C, P] per-view tensors,
-        which the compiler fuses (bench/train_throughput.py --compile; docs/benchmarks.md, issue 9). Dynamic
+        which the compiler fuses (bench/train_throughput.py --compile; docs/benchmarks.md). Dynamic
         shapes: one compile serves every ray count (coarse and fine pass, validation). Compiling the whole step
         instead was slower on the CPU.
         """
@@ -67,7 +67,7 @@ class InsertNeRF(nn.Module):
     def forward(self, encoded: EncodedViews, rays: Rays, train: bool, guide: Tensor | None = None) -> RenderOutput:
         """Render R rays: stratified coarse pass, then an importance-sampled fine pass; with ``guide`` [R] (a
         depth per ray, NaN where none) the fine samples follow the coarse weights guided to it as render's SfM
-        prior guides them (depth_prior.guide_weights)."""
+        prior guides them (model.guide.guide_weights)."""
         cfg = self.config
         rays = rays.to(device=self.background.device, dtype=self.background.dtype)
         backdrop = self.backdrop(encoded, rays)  # [R, 3] what the ray sees past its far bound

@@ -1,18 +1,18 @@
 """The training objective (paper section 3.4, method.md sections 3 and 7):
 colour MSE on both passes + w_b * backbone reconstruction MSE + w_dy * dynamic-weight colour MSE, and the geometry
-terms of issue 27 (geometry_losses.py): w_depth * depth + w_dist * distortion, each the mean of both passes."""
+terms (geometry_losses.py): w_depth * depth + w_dist * distortion, each the mean of both passes."""
 from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..cameras import check_shape
-from ..config import ModelConfig
-from ..compositing import psnr
-from ..rays import Rays
-from .geometry_losses import NO_SURFACE, depth_loss, distortion_loss
-from .types import EncodedViews, LossTerms, RenderOutput
+from insertnerf_cli.cameras.camera import check_shape
+from insertnerf_cli.config import ModelConfig
+from insertnerf_cli.model.compositing import psnr
+from insertnerf_cli.cameras.rays import Rays
+from insertnerf_cli.model.geometry_losses import NO_SURFACE, depth_loss, distortion_loss
+from insertnerf_cli.model.types import EncodedViews, LossTerms, RenderOutput
 
 
 def compute_losses(cfg: ModelConfig, output: RenderOutput, target_rgb: Tensor, encoded: EncodedViews,

@@ -14,8 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..config import ModelConfig
-from .hypernet import (AppearanceHyper, ConcatAppearance, ConcatLayer, GeometryHyperLayer, count_parameters,
+from insertnerf_cli.config import ModelConfig
+from insertnerf_cli.model.hypernet import (AppearanceHyper, ConcatAppearance, ConcatLayer, GeometryHyperLayer, count_parameters,
                        matched_hidden)
 
 

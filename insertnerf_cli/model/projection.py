@@ -12,9 +12,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..cameras import Cameras
-from .occlusion import visible
-from .types import EncodedViews
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.model.occlusion import visible
+from insertnerf_cli.model.types import EncodedViews
 
 # Grid coordinate given to samples a view cannot see: outside [-1, 1], so zero padding returns zeros for them.
 _OUTSIDE = 4.0
@@ -62,7 +62,7 @@ class Projected:
         if self.mask.shape[0] <= views:
             return self
         # A view a nearer surface hides gives its place to the next one in angle, so that a sample keeps K views
-        # that see it (round 33: mold_gold_cape +0.05 dB at 16 views with both generators, room +0.02 / 0).
+        # that see it (a small gain at 16 views: docs/research-log.md, Reference views).
         seen = self.mask if self.visible is None else self.visible
         # The largest cosines are the smallest angles, without ray_angle's asin (a quarter of this call's time).
         cos = torch.where(seen > 0, self.cos, torch.full_like(seen, -2.0))  # [V, 1, P]; unseen: last
@@ -95,7 +95,8 @@ def _length(vectors: Tensor) -> Tensor:
     """[V, 1, P] the Euclidean length of ``vectors`` [V, 3, P] along their middle axis.
 
     A sum of squares, not .norm(dim=1) or F.normalize(dim=1): reducing this 3-long middle axis, torch's norm took
-    25-29 ms for [10, 3, 40000] on the CPU against 0.4-4 (round 36), and every projection takes two of them.
+    25-29 ms for [10, 3, 40000] on the CPU against 0.4-4 (docs/research-log.md, Speed), and every projection
+    takes two of them.
     """
     return (vectors * vectors).sum(dim=1, keepdim=True).sqrt()
 

@@ -7,10 +7,10 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras, check_shape
-from ..compositing import Composite
-from ..sampling import RaySamples
-from .occlusion import Occlusion
+from insertnerf_cli.cameras.camera import Cameras, check_shape
+from insertnerf_cli.model.compositing import Composite
+from insertnerf_cli.model.sampling import RaySamples
+from insertnerf_cli.model.occlusion import Occlusion
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,8 @@ class EncodedViews:
     normalised grid (relative to the padded size) addresses the images and every feature scale exactly.
 
     Attributes:
-        features: per scale, coarse to fine: [V, C_l, Hp / 8, Wp / 8], [V, C_l, Hp / 4, Wp / 4], [V, C_l, Hp / 2, Wp / 2].
+        features: per scale, coarse to fine: [V, C_l, Hp / 8, Wp / 8], [V, C_l, Hp / 4, Wp / 4],
+            [V, C_l, Hp / 2, Wp / 2].
         images: [V, 3, Hp, Wp] padded reference colours (channels first, as grid_sample wants them).
         projection: [V, 3, 4] K [R | t]: world point (homogeneous) -> (u z, v z, z) in pixels.
         centers: [V, 3] camera centres.

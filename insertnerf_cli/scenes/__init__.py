@@ -11,11 +11,11 @@ import os
 from pathlib import Path
 from typing import Callable
 
-from ..errors import SceneError, os_error_message
-from .base import Layout, Scene
-from .images import IMAGE_EXTENSIONS, Distortion, find_images, read_rgb, resize
-from .normalize import Similarity, normalize_scene, walk_warning
-from .writers import write_blender_transforms, write_nerfstudio_transforms
+from insertnerf_cli.errors import SceneError, os_error_message
+from insertnerf_cli.scenes.base import Layout, Scene
+from insertnerf_cli.scenes.images import IMAGE_EXTENSIONS, Distortion, find_images, read_rgb, resize
+from insertnerf_cli.scenes.normalize import Similarity, normalize_scene, walk_warning
+from insertnerf_cli.scenes.writers import write_blender_transforms, write_nerfstudio_transforms
 
 __all__ = ["Distortion", "Layout", "Scene", "SceneError", "Similarity", "detect_format", "find_images",
            "load_scene", "normalize_scene", "read_rgb", "resize", "write_blender_transforms",
@@ -26,7 +26,7 @@ Reader = Callable[[Path, str, tuple[float, float, float]], Scene]
 
 def _readers() -> dict[str, tuple[Callable[[Path], bool], Reader]]:
     """Format name -> (detector, reader), in detection order."""
-    from . import blender, colmap_model, dtu, llff, nerfstudio
+    from insertnerf_cli.scenes import blender, colmap_model, dtu, llff, nerfstudio
 
     return {
         "blender": (lambda r: bool(blender.split_files(r)), lambda r, i, b: blender.read_blender(r, b)),

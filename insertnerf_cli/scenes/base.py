@@ -9,10 +9,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras
-from ..errors import SceneError
-from .images import Distortion, read_rgb, resize, undistort
-from .points import ScenePoints
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.errors import SceneError
+from insertnerf_cli.scenes.images import Distortion, read_rgb, resize, undistort
+from insertnerf_cli.scenes.points import ScenePoints
 
 Layout = Literal["object", "forward"]
 

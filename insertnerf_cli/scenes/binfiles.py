@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SceneError, first_line, os_error_message
+from insertnerf_cli.errors import SceneError, first_line, os_error_message
 
 _NPY_MAGIC = b"\x93NUMPY"
 _MAX_HEADER = 65536
@@ -195,7 +195,8 @@ def _rigs(c: _Cursor) -> None:
 
 
 def _frames(c: _Cursor) -> None:
-    _headed_records(c, "frame", "II7d", "I", 16, "data list")  # id, rig id, pose; data of (sensor type, sensor id, data id)
+    # id, rig id, pose; data of (sensor type, sensor id, data id)
+    _headed_records(c, "frame", "II7d", "I", 16, "data list")
 
 
 def check_colmap_binary(model_dir: Path) -> None:

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .base import Scene
-from .common import ReadViews, assemble
-from .jsonframes import depth_scale, layout_key, load_json, read_frames
+from insertnerf_cli.scenes.base import Scene
+from insertnerf_cli.scenes.common import ReadViews, assemble
+from insertnerf_cli.scenes.jsonframes import depth_scale, layout_key, load_json, read_frames
 
 SPLITS = ("train", "val", "test")
 

@@ -14,14 +14,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras, w2c_to_c2w
-from ..errors import SceneError, first_line
-from .base import Scene
-from .binfiles import check_colmap_binary
-from .common import ReadViews, assemble, safe_path
-from .geometry import point_depths
-from .images import Distortion
-from .points import ScenePoints
+from insertnerf_cli.cameras.camera import Cameras, w2c_to_c2w
+from insertnerf_cli.errors import SceneError, first_line
+from insertnerf_cli.scenes.base import Scene
+from insertnerf_cli.scenes.binfiles import check_colmap_binary
+from insertnerf_cli.scenes.common import ReadViews, assemble, safe_path
+from insertnerf_cli.scenes.geometry import point_depths
+from insertnerf_cli.scenes.images import Distortion
+from insertnerf_cli.scenes.points import ScenePoints
 
 MODEL_DIRS = ("sparse/0", "sparse")
 _UNDISTORT_HINT = ("undistort the model first (`colmap image_undistorter`, or run `insertnerf poses` on the "

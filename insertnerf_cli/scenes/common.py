@@ -13,12 +13,12 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras
-from ..errors import SceneError
-from .base import Layout, Scene
-from .geometry import bounds_from_depths, bounds_from_geometry, detect_layout
-from .images import MAX_ZOOM, Distortion, blank_free_zoom, image_size, source_share
-from .points import ScenePoints
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.errors import SceneError
+from insertnerf_cli.scenes.base import Layout, Scene
+from insertnerf_cli.scenes.geometry import bounds_from_depths, bounds_from_geometry, detect_layout
+from insertnerf_cli.scenes.images import MAX_ZOOM, Distortion, blank_free_zoom, image_size, source_share
+from insertnerf_cli.scenes.points import ScenePoints
 
 # Two sizes share an aspect ratio when rescaling one to the other moves its height by at most this many pixels.
 ASPECT_TOLERANCE_PX = 1.0

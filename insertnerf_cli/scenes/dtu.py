@@ -20,13 +20,13 @@ import cv2
 import numpy as np
 import torch
 
-from ..cameras import w2c_to_c2w
-from ..errors import SceneError, os_error_message
-from .base import Scene
-from .binfiles import load_npz
-from .common import ReadViews, assemble, safe_path
-from .images import find_images, image_size
-from .values import matrix, number
+from insertnerf_cli.cameras.camera import w2c_to_c2w
+from insertnerf_cli.errors import SceneError, os_error_message
+from insertnerf_cli.scenes.base import Scene
+from insertnerf_cli.scenes.binfiles import load_npz
+from insertnerf_cli.scenes.common import ReadViews, assemble, safe_path
+from insertnerf_cli.scenes.images import find_images, image_size
+from insertnerf_cli.scenes.values import matrix, number
 
 CAMERA_DIRS = ("Cameras", "Cameras/train")
 NPZ_NAMES = ("cameras.npz", "cameras_sphere.npz")

@@ -10,8 +10,8 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras
-from .base import Layout
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.scenes.base import Layout
 
 # Forward-facing captures keep every optical axis within this angle of the mean axis (LLFF scenes stay
 # under ~25 deg); object-centric arcs and orbits spread wider.
@@ -110,7 +110,7 @@ def point_depths(cameras: Cameras, points: Tensor) -> list[Tensor]:
 
 
 # A step between views next to each other in name order counts as a jump above both of these: a photographer's walk
-# moves a few degrees a photo (beer: 7 median), and its poses folded by a symmetric object jump back ~155 degrees.
+# moves a few degrees a photo, and its poses folded by a symmetric object jump back ~155 degrees.
 JUMP_MIN_DEG, JUMP_MEDIAN_RATIO = 60.0, 8.0
 # Two clips of one walk give one jump; a fold gives one per pass.
 FOLD_MIN_JUMPS = 2
@@ -133,7 +133,7 @@ def walk_jumps(cameras: Cameras, center: Tensor) -> list[tuple[int, float]]:
 
 def folded_walk_warning(names: Sequence[str], cameras: Cameras, center: Tensor) -> str | None:
     """A one-line warning when an object capture's poses jump back and forth between photos next to each other in
-    name order (:func:`walk_jumps`), as beer's folded poses do (docs/commands/poses.md "Folded walks"); else None."""
+    name order (:func:`walk_jumps`), as folded poses do (docs/commands/poses.md "Folded walks"); else None."""
     jumps = walk_jumps(cameras, center)
     if len(jumps) < FOLD_MIN_JUMPS:
         return None

@@ -15,7 +15,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from ..errors import SceneError, os_error_message
+from insertnerf_cli.errors import SceneError, os_error_message
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 

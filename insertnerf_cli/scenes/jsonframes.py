@@ -15,11 +15,11 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..cameras import intrinsics, opengl_to_opencv
-from ..errors import SceneError, os_error_message
-from .common import names_list, safe_path
-from .images import Distortion, image_size
-from .values import matrix, number, objects, text, whole
+from insertnerf_cli.cameras.camera import intrinsics, opengl_to_opencv
+from insertnerf_cli.errors import SceneError, os_error_message
+from insertnerf_cli.scenes.common import names_list, safe_path
+from insertnerf_cli.scenes.images import Distortion, image_size
+from insertnerf_cli.scenes.values import matrix, number, objects, text, whole
 
 # nerfstudio's default for depth_unit_scale_factor: 16-bit PNGs in millimetres of a metre-scale scene.
 DEFAULT_DEPTH_SCALE = 1e-3

@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..cameras import intrinsics, llff_to_opencv
-from ..errors import SceneError
-from .base import Scene
-from .binfiles import load_npy
-from .colmap_model import aligned_model_points
-from .common import ReadViews, assemble, safe_path
-from .images import find_images
+from insertnerf_cli.cameras.camera import intrinsics, llff_to_opencv
+from insertnerf_cli.errors import SceneError
+from insertnerf_cli.scenes.base import Scene
+from insertnerf_cli.scenes.binfiles import load_npy
+from insertnerf_cli.scenes.colmap_model import aligned_model_points
+from insertnerf_cli.scenes.common import ReadViews, assemble, safe_path
+from insertnerf_cli.scenes.images import find_images
 
 FILENAME = "poses_bounds.npy"
 _ROW = 17  # 3x5 pose-and-hwf matrix + near + far

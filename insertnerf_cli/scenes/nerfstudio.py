@@ -17,16 +17,16 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras
-from ..errors import SceneError
-from .base import Scene
-from .binfiles import check_colmap_binary
-from .colmap_model import aligned_model_points, model_points
-from .common import ReadViews, assemble, safe_path
-from .geometry import point_depths
-from .jsonframes import depth_scale, layout_key, load_json, read_frames
-from .points import ScenePoints
-from .values import FIX, listing, matrix, show, text
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.errors import SceneError
+from insertnerf_cli.scenes.base import Scene
+from insertnerf_cli.scenes.binfiles import check_colmap_binary
+from insertnerf_cli.scenes.colmap_model import aligned_model_points, model_points
+from insertnerf_cli.scenes.common import ReadViews, assemble, safe_path
+from insertnerf_cli.scenes.geometry import point_depths
+from insertnerf_cli.scenes.jsonframes import depth_scale, layout_key, load_json, read_frames
+from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.scenes.values import FIX, listing, matrix, show, text
 
 FILENAME = "transforms.json"
 _SINGULAR = 1e-12  # |det| below this: applied_transform cannot be undone

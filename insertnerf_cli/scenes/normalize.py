@@ -16,10 +16,10 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras, check_shape
-from ..errors import SceneError
-from .base import Scene
-from .geometry import focus_point, folded_walk_warning
+from insertnerf_cli.cameras.camera import Cameras, check_shape
+from insertnerf_cli.errors import SceneError
+from insertnerf_cli.scenes.base import Scene
+from insertnerf_cli.scenes.geometry import focus_point, folded_walk_warning
 
 OBJECT_RADIUS = 4.0
 FORWARD_NEAR_FRACTION = 0.75

@@ -7,7 +7,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-from ..cameras import check_shape
+from insertnerf_cli.cameras.camera import check_shape
 
 # A point needs two observing views to be triangulated without the others: the rule for "seen from these views".
 MIN_OBSERVERS = 2

@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import SceneError
+from insertnerf_cli.errors import SceneError
 
 FIX = "correct the file or re-export the scene"
 _SHOWN_CHARS = 40  # a bad value longer than this is cut in messages

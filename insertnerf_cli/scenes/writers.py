@@ -14,8 +14,8 @@ from typing import Any, Mapping, Sequence
 
 import torch
 
-from ..atomic import write_json
-from ..cameras import Cameras
+from insertnerf_cli.files.atomic import write_json
+from insertnerf_cli.cameras.camera import Cameras
 
 
 def _relative(path: str | os.PathLike, base: Path) -> str:

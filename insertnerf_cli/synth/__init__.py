@@ -6,9 +6,9 @@ natural.py, lights) -> layouts.py places cameras -> raycast.py flattens the worl
 render.py + shading.py render each view -> capture.py develops it into an 8-bit photo -> scene.py writes a
 Blender-format folder. dataset.py runs scenes in parallel with a manifest and resume.
 """
-from .capture import CaptureOptions
-from .dataset import GENERATOR_VERSION, DatasetRun, Manifest, SynthOptions, build_dataset, generate_dataset
-from .scene import LAYOUTS, SceneSpec, render_scene
+from insertnerf_cli.synth.capture import CaptureOptions
+from insertnerf_cli.synth.dataset import GENERATOR_VERSION, DatasetRun, Manifest, SynthOptions, build_dataset, generate_dataset
+from insertnerf_cli.synth.scene import LAYOUTS, SceneSpec, render_scene
 
 __all__ = ["CaptureOptions", "DatasetRun", "GENERATOR_VERSION", "LAYOUTS", "Manifest", "SceneSpec", "SynthOptions",
            "build_dataset", "generate_dataset", "render_scene"]

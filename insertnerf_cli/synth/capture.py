@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
-from .textures import linear_to_srgb
+from insertnerf_cli.synth.textures import linear_to_srgb
 
 # Luminance weights of linear sRGB (Rec. 709).
 _LUMA = np.array([0.2126, 0.7152, 0.0722])

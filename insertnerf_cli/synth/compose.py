@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import geometry
-from .builder import Builder, cluster, identity, normalize
-from .enclosures import enclose, scene_lights
-from .geometry import THIN, Shape
-from .world import Stage, World, random_material, random_rotation, random_shape, sun_light
+from insertnerf_cli.synth import geometry
+from insertnerf_cli.synth.builder import Builder, cluster, identity, normalize
+from insertnerf_cli.synth.enclosures import enclose, scene_lights
+from insertnerf_cli.synth.geometry import THIN, Shape
+from insertnerf_cli.synth.world import Stage, World, random_material, random_rotation, random_shape, sun_light
 
 # Half-size of the x-y box that object and 360 cameras (at distance ~2.5-5 from a radius-1 subject) need.
 _REACH = np.array([5.0, 5.0])

@@ -20,13 +20,13 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator, Literal
 
-from ..atomic import write_error, write_json
-from ..errors import UserError
-from ..lock import lock_output, releases_output_locks
-from ..outdir import OutputRecord, check_output, foreign_entries, move_into, record_tree
-from .capture import CaptureOptions
-from .layouts import FOV_RANGE
-from .scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, fov_json, render_scene
+from insertnerf_cli.files.atomic import write_error, write_json
+from insertnerf_cli.errors import UserError
+from insertnerf_cli.files.lock import lock_output, releases_output_locks
+from insertnerf_cli.files.outdir import OutputRecord, check_output, foreign_entries, move_into, record_tree
+from insertnerf_cli.synth.capture import CaptureOptions
+from insertnerf_cli.synth.layouts import FOV_RANGE
+from insertnerf_cli.synth.scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, fov_json, render_scene
 
 # Bump when a change makes the same seed and options give other pixels.
 GENERATOR_VERSION = "synth-5"

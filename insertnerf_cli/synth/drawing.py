@@ -6,8 +6,8 @@ import string
 import cv2
 import numpy as np
 
-from .natural import natural_texture
-from .textures import PATTERNS, SIZE, Texture, colorize, fbm, palette, random_color, srgb_to_linear
+from insertnerf_cli.synth.natural import natural_texture
+from insertnerf_cli.synth.textures import PATTERNS, SIZE, Texture, colorize, fbm, palette, random_color, srgb_to_linear
 
 _FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_COMPLEX, cv2.FONT_HERSHEY_TRIPLEX,
           cv2.FONT_HERSHEY_SCRIPT_SIMPLEX, cv2.FONT_HERSHEY_PLAIN, cv2.FONT_ITALIC | cv2.FONT_HERSHEY_COMPLEX)

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from . import geometry
-from .builder import Builder, identity
-from .geometry import Shape
-from .world import Light, light_tint, random_material, random_shape, sky_material, sun_light
+from insertnerf_cli.synth import geometry
+from insertnerf_cli.synth.builder import Builder, identity
+from insertnerf_cli.synth.geometry import Shape
+from insertnerf_cli.synth.world import Light, light_tint, random_material, random_shape, sky_material, sun_light
 
 # Radius of the ground under an open sky: the farthest surface any camera near the origin sees (< 65.5).
 GROUND_RADIUS = 55.0

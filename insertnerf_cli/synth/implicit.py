@@ -11,7 +11,7 @@ from typing import Callable
 import numpy as np
 import trimesh
 
-from .geometry import Shape, wobble
+from insertnerf_cli.synth.geometry import Shape, wobble
 
 # Grid cells per side: 48 gives ~10k triangles, smooth at a few hundred pixels, and meshes in ~50 ms.
 GRID = 48

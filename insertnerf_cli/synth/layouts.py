@@ -1,4 +1,4 @@
-"""Camera rigs for the four layouts, as :class:`~insertnerf_cli.cameras.Cameras` (OpenCV c2w, world z up).
+"""Camera rigs for the four layouts, as :class:`~insertnerf_cli.cameras.camera.Cameras` (OpenCV c2w, world z up).
 
 * object: cameras on a sphere or upper hemisphere around the subject, looking at it (NeRF-Synthetic).
 * 360: a hand-held orbit around the subject at a wobbling height and distance, inside the enclosure.
@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..cameras import Cameras, intrinsics
-from .world import Stage
+from insertnerf_cli.cameras.camera import Cameras, intrinsics
+from insertnerf_cli.synth.world import Stage
 
 # Field of view of the image's long side, degrees: from a short tele (NeRF-Synthetic is 39.6) to a phone's wide.
 FOV_RANGE = (35.0, 75.0)

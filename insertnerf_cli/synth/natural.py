@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .textures import SIZE, colorize, fbm, random_color
+from insertnerf_cli.synth.textures import SIZE, colorize, fbm, random_color
 
 
 def pink(rng: np.random.Generator, size: int = SIZE, exponent: float | None = None) -> np.ndarray:

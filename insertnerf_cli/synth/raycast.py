@@ -14,7 +14,7 @@ import trimesh
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from .world import World
+from insertnerf_cli.synth.world import World
 
 # Smooth shading stops at creases sharper than this (cylinder rims, box-like CSG edges).
 _CREASE = np.radians(35.0)

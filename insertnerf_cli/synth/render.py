@@ -10,12 +10,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..cameras import Cameras
-from .capture import luminance
-from .raycast import SceneMesh, cast
-from .shading import shade, sky_radiance
-from .textures import srgb_to_linear
-from .world import World
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.synth.capture import luminance
+from insertnerf_cli.synth.raycast import SceneMesh, cast
+from insertnerf_cli.synth.shading import shade, sky_radiance
+from insertnerf_cli.synth.textures import srgb_to_linear
+from insertnerf_cli.synth.world import World
 
 # Sub-pixel offsets (pixels) of the extra rays at edges: a rotated grid, which resolves near-horizontal and
 # near-vertical edges better than a square one.

@@ -15,14 +15,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..cameras import Cameras
-from ..scenes.writers import write_blender_transforms
-from .capture import CaptureOptions, develop, draw_settings
-from .compose import COMPOSERS
-from .layouts import FOV_RANGE, RIGS, Frame, held_out_indices, random_frame
-from .raycast import build_scene_mesh
-from .render import auto_exposure, render_view
-from .world import World, exposed
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.scenes.writers import write_blender_transforms
+from insertnerf_cli.synth.capture import CaptureOptions, develop, draw_settings
+from insertnerf_cli.synth.compose import COMPOSERS
+from insertnerf_cli.synth.layouts import FOV_RANGE, RIGS, Frame, held_out_indices, random_frame
+from insertnerf_cli.synth.raycast import build_scene_mesh
+from insertnerf_cli.synth.render import auto_exposure, render_view
+from insertnerf_cli.synth.world import World, exposed
 
 LAYOUTS = ("object", "forward", "360", "handheld")
 # Depth files store millimetres of scene units in uint16 (nerfstudio's convention).

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .raycast import Hits, SceneMesh, cast
-from .textures import sample, srgb_to_linear
-from .world import Light, Material, World
+from insertnerf_cli.synth.raycast import Hits, SceneMesh, cast
+from insertnerf_cli.synth.textures import sample, srgb_to_linear
+from insertnerf_cli.synth.world import Light, Material, World
 
 # Triplanar blend sharpness: higher gives narrower transitions between the three projections.
 _BLEND_POWER = 4.0

@@ -11,10 +11,10 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .drawing import random_texture, sky_image
-from .geometry import PRIMITIVES, THIN, Shape, deformed
-from .implicit import implicit_shape
-from .textures import Texture, fbm, srgb_to_linear
+from insertnerf_cli.synth.drawing import random_texture, sky_image
+from insertnerf_cli.synth.geometry import PRIMITIVES, THIN, Shape, deformed
+from insertnerf_cli.synth.implicit import implicit_shape
+from insertnerf_cli.synth.textures import Texture, fbm, srgb_to_linear
 
 Mapping = Literal["triplanar", "sky"]
 LightKind = Literal["directional", "point"]

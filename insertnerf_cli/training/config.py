@@ -9,8 +9,8 @@ from typing import Any, Literal
 
 import torch
 
-from ..config import ModelConfig, check_field_types, config_from_json
-from ..errors import UserError
+from insertnerf_cli.config import ModelConfig, check_field_types, config_from_json
+from insertnerf_cli.errors import UserError
 
 
 _SEED_LIMIT = 2 ** 63  # torch.manual_seed takes a signed 64-bit integer
@@ -41,10 +41,10 @@ class TrainConfig:
         data_budget_mb: the training images (uint8) are decoded once and kept on the training device when they
             fit this budget; a larger set is read from disk through the image cache each step (0: always).
         precision: "fp32", or "bf16" for the training step under bf16 autocast (validation stays float32).
-            Float32 by default on every device: bf16 was no faster on the CPU (docs/benchmarks.md, issue 9) and
+            Float32 by default on every device: bf16 was no faster on the CPU (docs/benchmarks.md) and
             is not measured on a GPU yet.
         compile: compile the model's per-scale aggregators with torch.compile (InsertNeRF.compile_aggregation):
-            1.3x rays/s on the 2-core CPU (docs/benchmarks.md, issue 9); off by default, since compiling takes up
+            1.3x rays/s on the 2-core CPU (docs/benchmarks.md); off by default, since compiling takes up
             to a minute and needs a C++ compiler.
         views_min: the fewest source views a step draws (None: always model.num_views). Validation uses
             model.num_views.
@@ -114,8 +114,8 @@ class TrainConfig:
 DATA_FIELDS = ("rays", "resolution", "seed", "lr", "lr_encoder", "lr_half_life", "lr_min", "val_scenes",
                "batch_scenes", "views_min", "guide_prior", "guide_from")
 
-# Scenes per step when --batch-scenes is not given. CPU: measured (docs/benchmarks.md, issue 9). CUDA: not
-# measured yet (no GPU was lent to that work); 4 keeps B * V = 32 images per encoder call.
+# Scenes per step when --batch-scenes is not given. CPU: measured (docs/benchmarks.md). CUDA: not measured;
+# 4 keeps B * V = 32 images per encoder call.
 _DEFAULT_BATCH_SCENES = {"cpu": 1, "cuda": 4}
 
 
@@ -166,7 +166,8 @@ def read_model_config(path: Path) -> ModelConfig:
 
 def saved_train_config(checkpoint_path: Path) -> TrainConfig:
     """The TrainConfig stored in a run's checkpoint (the base that --resume overrides with given flags)."""
-    from ..checkpoint import read_checkpoint  # checkpoint imports the model package; keep config light
+    # checkpoint imports the model package; keep config light
+    from insertnerf_cli.model.checkpoint import read_checkpoint
 
     if not Path(checkpoint_path).is_file():
         raise UserError(f"nothing to resume: {checkpoint_path} does not exist; start a new run without --resume.")

@@ -16,12 +16,12 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from ..cameras import Cameras
-from ..errors import UserError
-from ..model import SourceViews
-from ..rays import Rays, rays_from_pixels
-from ..scenes import Scene, load_scene, normalize_scene
-from ..views import ViewMethod, nearest_views, sample_training_views
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.errors import UserError
+from insertnerf_cli.model import SourceViews
+from insertnerf_cli.cameras.rays import Rays, rays_from_pixels
+from insertnerf_cli.scenes import Scene, load_scene, normalize_scene
+from insertnerf_cli.scenes.views import ViewMethod, nearest_views, sample_training_views
 
 Say = Callable[[str], None]
 _LEVELS = 255.0  # images are cached as uint8

@@ -10,9 +10,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..errors import SceneError
-from ..scenes import Scene
-from .data import TrainScene
+from insertnerf_cli.errors import SceneError
+from insertnerf_cli.scenes import Scene
+from insertnerf_cli.training.data import TrainScene
 
 
 def read_scene_depth(scene: Scene, index: int, height: int, width: int) -> np.ndarray | None:

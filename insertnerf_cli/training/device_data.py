@@ -17,9 +17,9 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from ..views import nearest_views
-from .data import ImageCache, Say, TrainScene, decode_uint8
-from .depth import decode_depth
+from insertnerf_cli.scenes.views import nearest_views
+from insertnerf_cli.training.data import ImageCache, Say, TrainScene, decode_uint8
+from insertnerf_cli.training.depth import decode_depth
 
 _BYTES_PER_MB = 1 << 20
 # Bytes of a view's float32 depth map per byte of its uint8 RGB image.

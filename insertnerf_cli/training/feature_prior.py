@@ -1,6 +1,6 @@
 """A training prior made the way render makes one from a scene's SfM points (train --guide-from features).
 
-Round 20's simulated prior (training/guide.py) gives 70 % of the surface rays a depth wherever they are. Render's
+The simulated prior (training/guide.py) gives 70 % of the surface rays a depth wherever they are. Render's
 prior is sparser and wrong in other places: COLMAP's points sit on texture (corners and blobs the references
 match), each one is splatted into the target and carried up to 12 px into plain surfaces, and a point the
 references see but the target does not (behind an occluder) paints the occluder's pixels with its farther depth.
@@ -15,16 +15,16 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras
-from ..depth_prior import prior_depth
-from .data import decode_uint8
-from .depth import decode_depth
-from .device_data import SizeGroup, TrainingSet
+from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.sfm.depth_prior import prior_depth
+from insertnerf_cli.training.data import decode_uint8
+from insertnerf_cli.training.depth import decode_depth
+from insertnerf_cli.training.device_data import SizeGroup, TrainingSet
 
 # Corners per pixel of a source view (133 at 200 x 200), the weakest corner kept relative to the strongest, and
-# their spacing; and each lifted point's relative depth error. Chosen so that the prior's figures match real
-# triangulation on the same synth scenes (bench/prior_accuracy.py --near 10, round 21): it covers 0.49 and 0.61 of
-# the pixels of two scenes at a median error of 4 % (COLMAP's points: 0.74 and 0.38, at 7.3 % and 2.7 %).
+# their spacing; and each lifted point's relative depth error. Chosen so that the prior's cover and error match
+# real triangulation on the same synth scenes: about half the pixels at a median error of a few percent
+# (measured: docs/research-log.md, Sampling and the SfM depth prior).
 CORNERS_PER_PIXEL = 1 / 300
 CORNER_QUALITY = 0.01
 CORNER_SPACING = 3

@@ -1,21 +1,21 @@
 """Fine samples guided in training as render guides them by SfM points (depth_prior.guide_weights).
 
-Since round 18 render and eval send most fine samples to a band around the depth of the scene's SfM points, yet
-training placed them by the coarse weights alone, so the fine pass never saw the sample layout it renders with.
-A synth scene's exact depth stands in for the points, spoilt the way a splatted sparse cloud is (docs/model-card.md,
-round 20): no point on empty backdrop or sky, gaps where no feature was found, a few percent of depth error, and
-some pixels that carry a wrong neighbour's depth (a splat bleeding across an occlusion edge).
+Render and eval send most fine samples to a band around the depth of the scene's SfM points; placed by the
+coarse weights alone in training, the fine pass would never see the sample layout it renders with. A synth scene's
+exact depth stands in for the points, spoilt the way a splatted sparse cloud is (docs/research-log.md, Sampling and
+the SfM depth prior): no point on empty backdrop or sky, gaps where no feature was found, a few percent of depth
+error, and some pixels that carry a wrong neighbour's depth (a splat bleeding across an occlusion edge).
 """
 from __future__ import annotations
 
 import torch
 from torch import Tensor
 
-from ..model.geometry_losses import NO_SURFACE
+from insertnerf_cli.model.geometry_losses import NO_SURFACE
 
 # Shares of the rays with a surface that get a prior, and of those that get a wrong one; the prior's relative
-# error. Round 19's flower points cover most textured pixels within 12 px of a splat, and bench/prior_accuracy.py
-# measured a median relative error of 2.7 % on a synth scene with the near-reference rule.
+# error. A real capture's points cover most textured pixels within 12 px of a splat, and triangulation on a synth
+# scene has a median relative error near 3 % (measured: docs/research-log.md, Sampling and the SfM depth prior).
 COVERAGE = 0.7
 WRONG = 0.1
 RELATIVE_ERROR = 0.03

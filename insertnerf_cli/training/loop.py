@@ -14,14 +14,14 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from ..errors import UserError
-from ..lock import releases_output_locks
-from ..model import LossTerms
-from . import distributed
-from .config import TrainConfig, with_device_defaults
-from .data import make_batch
-from .run_dir import RunFiles, append_metrics
-from .session import Session, open_session, save, set_learning_rates
+from insertnerf_cli.errors import UserError
+from insertnerf_cli.files.lock import releases_output_locks
+from insertnerf_cli.model import LossTerms
+from insertnerf_cli.training import distributed
+from insertnerf_cli.training.config import TrainConfig, with_device_defaults
+from insertnerf_cli.training.data import make_batch
+from insertnerf_cli.training.run_dir import RunFiles, append_metrics
+from insertnerf_cli.training.session import Session, open_session, save, set_learning_rates
 
 LOSS_NAMES = tuple(f.name for f in fields(LossTerms))
 

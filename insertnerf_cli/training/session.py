@@ -11,25 +11,25 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..atomic import WriteError
-from ..checkpoint import Checkpoint, TrainState, load_weights, read_checkpoint, save_checkpoint
-from ..config import config_to_json
-from ..errors import UserError
-from ..lock import lock_output
-from ..model import InsertNeRF, LossTerms, SourceViews
-from ..rays import Rays
-from . import distributed
-from .config import DATA_FIELDS, TrainConfig, model_differences
-from .batches import BatchObjective, DrawGenerators, StepStream, check_batch_scenes
-from .data import (ImageCache, TrainScene, ViewDraw, check_view_counts, find_scenes, split_scenes,
+from insertnerf_cli.files.atomic import WriteError
+from insertnerf_cli.model.checkpoint import Checkpoint, TrainState, load_weights, read_checkpoint, save_checkpoint
+from insertnerf_cli.config import config_to_json
+from insertnerf_cli.errors import UserError
+from insertnerf_cli.files.lock import lock_output
+from insertnerf_cli.model import InsertNeRF, LossTerms, SourceViews
+from insertnerf_cli.cameras.rays import Rays
+from insertnerf_cli.training import distributed
+from insertnerf_cli.training.config import DATA_FIELDS, TrainConfig, model_differences
+from insertnerf_cli.training.batches import BatchObjective, DrawGenerators, StepStream, check_batch_scenes
+from insertnerf_cli.training.data import (ImageCache, TrainScene, ViewDraw, check_view_counts, find_scenes, split_scenes,
                    validation_draws)
-from .device_data import TrainingSet, load_training_set
-from .distributed import DistContext
-from .feature_prior import FeaturePriors
-from .rng import capture_rng, restore_rng
-from .run_dir import (OWNER, RunFiles, check_run_dir, claim_run, clear_run, read_splits, truncate_metrics,
+from insertnerf_cli.training.device_data import TrainingSet, load_training_set
+from insertnerf_cli.training.distributed import DistContext
+from insertnerf_cli.training.feature_prior import FeaturePriors
+from insertnerf_cli.training.rng import capture_rng, restore_rng
+from insertnerf_cli.training.run_dir import (OWNER, RunFiles, check_run_dir, claim_run, clear_run, read_splits, truncate_metrics,
                       write_run_config, write_splits)
-from .warm_start import warm_start
+from insertnerf_cli.training.warm_start import warm_start
 
 Say = Callable[[str], None]
 _BYTES_PER_MB = 1 << 20
@@ -111,7 +111,8 @@ def open_session(dataset_dir: Path, files: RunFiles, config: TrainConfig, ctx: D
         _restore(session, checkpoint)
     if config.compile:
         model.compile_aggregation()
-    session.objective = distributed.wrap(BatchObjective(model, config.guide_prior), ctx)  # after restoring: DDP broadcasts rank 0
+    # After restoring: DDP broadcasts rank 0's weights.
+    session.objective = distributed.wrap(BatchObjective(model, config.guide_prior), ctx)
     priors = FeaturePriors(data) if config.guide_prior and config.guide_from == "features" else None
     session.stream = StepStream(data, usable, session.generators, config.batch_scenes, config.model.num_views,
                                 config.rays, config.cache_mb * _BYTES_PER_MB, config.views_min, priors)
