@@ -1,4 +1,4 @@
-"""The `insertnerf` command group. Each command lives in insertnerf_cli/commands/<name>.py and stays thin:
+"""The `insertnerf` command group. Each command lives in insertnerf_cli/cli/commands/<name>.py and stays thin:
 check input -> build config -> call one library function -> print a one-line summary.
 
 The commands (and torch behind them) are imported when click first looks one up, with Ctrl-C held meanwhile

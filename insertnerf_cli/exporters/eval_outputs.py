@@ -8,8 +8,8 @@ from typing import Sequence
 import numpy as np
 
 from insertnerf_cli.errors import UserError
-from insertnerf_cli.files.outdir import OutputRecord, check_output, holds_files
 from insertnerf_cli.exporters.outputs import FRAME_GLOB, frame_name, to_uint8
+from insertnerf_cli.files.outdir import OutputRecord, check_output, holds_files
 
 OWNER = "eval"
 REPORT_HTML = "report.html"

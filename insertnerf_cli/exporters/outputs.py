@@ -23,11 +23,12 @@ from typing import Sequence
 import numpy as np
 from torch import Tensor
 
-from insertnerf_cli.files.atomic import atomic_path, write_bytes, write_json
 from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.errors import UserError
+from insertnerf_cli.files.atomic import atomic_path, write_bytes, write_json
 from insertnerf_cli.files.outdir import OutputRecord, foreign_entries, remove_if_empty
 from insertnerf_cli.poses.folder import LEGACY_OUTPUTS as POSES_LEGACY_OUTPUTS, OWNER as POSES_OWNER
+from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
 
 FRAME_DIRS = ("frames", "depth", "depth_vis")
 VIDEOS = ("video.mp4", "depth.mp4")
@@ -263,8 +264,6 @@ def write_cameras_json(path: Path, cameras: Cameras, near: Tensor, far: Tensor, 
         extra: top-level keys to add (e.g. the path kind, fps, the similarity to the normalised frame).
     Frames are named frames/00000.png, ...; depth files depth/00000.png (or .npy).
     """
-    from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
-
     write_nerfstudio_transforms(path, cameras, [f"frames/{frame_name(i)}" for i in range(len(cameras))], near=near,
                                 far=far, extra={"depth_unit_scale_factor": depth_scale, "depth_format": depth_format,
                                                 **(extra or {})},

@@ -8,9 +8,9 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from insertnerf_cli.files.atomic import write_bytes
 from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.exporters.outputs import FramePaths, read_depth
+from insertnerf_cli.files.atomic import write_bytes
 
 # About a million points open at once in every viewer and keep the file near 15 MB.
 DEFAULT_POINTS = 1_000_000

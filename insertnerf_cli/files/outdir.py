@@ -18,8 +18,8 @@ import os
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from insertnerf_cli.files.atomic import stray_temporaries, write_json
 from insertnerf_cli.errors import UserError
+from insertnerf_cli.files.atomic import stray_temporaries, write_json
 from insertnerf_cli.files.lock import is_lock_name
 
 RECORD_NAME = ".insertnerf-outputs.json"

@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from insertnerf_cli.sfm.depth_prior import PriorOptions, covering_far, view_prior
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import EncodedViews, InsertNeRF, SourceViews
 from insertnerf_cli.rendering.view_renderer import colour_size
 from insertnerf_cli.scenes.views import held_out_views, nearest_views
+from insertnerf_cli.sfm.depth_prior import PriorOptions, covering_far, view_prior
 from insertnerf_cli.training.data import ImageCache, TrainScene, ViewDraw, draw_training_views, prepare_scene, to_uint8
 
 # Views encoded at once when the frozen encoder's features are precomputed (bounds peak memory).

@@ -14,19 +14,20 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from insertnerf_cli.model.checkpoint import bundled_checkpoint, build_model, read_checkpoint, save_checkpoint
 from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS, ModelConfig
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.files.outdir import check_output
-from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.finetune.data import FrozenFeatures, TargetPriors, draw, finetune_scene
 from insertnerf_cli.model import InsertNeRF, LossTerms
+from insertnerf_cli.model.checkpoint import build_model, bundled_checkpoint, read_checkpoint, save_checkpoint
+from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.sfm.triangulate import with_points
 from insertnerf_cli.training.data import ImageCache, TrainScene, make_batch
+
 # Training's Ctrl-C rule (finish the step, save; a second Ctrl-C stops at once), shared rather than copied.
 from insertnerf_cli.training.loop import _StopRequest
 from insertnerf_cli.training.session import Objective
-from insertnerf_cli.sfm.triangulate import with_points
-from insertnerf_cli.finetune.data import FrozenFeatures, TargetPriors, draw, finetune_scene
 
 Say = Callable[[str], None]
 _CACHE_BYTES = 1 << 30  # uint8 images at the fine-tuning size; a 256-px scene of 100 views needs ~20 MB

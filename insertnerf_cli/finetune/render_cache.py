@@ -12,11 +12,11 @@ from pathlib import Path
 
 import torch
 
-from insertnerf_cli.files.atomic import write_json
-from insertnerf_cli.model.checkpoint import checkpoint_sha256
 from insertnerf_cli.config import config_to_json
-from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.files.atomic import write_json
 from insertnerf_cli.finetune.loop import FinetuneConfig, finetune
+from insertnerf_cli.model.checkpoint import checkpoint_sha256
+from insertnerf_cli.scenes.points import ScenePoints
 
 WEIGHTS = "finetune.pt"
 RECORD = "finetune.json"

@@ -24,7 +24,6 @@ from torch import Tensor, nn
 
 from insertnerf_cli.model.projection import ray_angle
 
-
 # Radians: below a thousandth of a pixel's angle at any usable resolution; keeps 1 / angle finite.
 _MIN_ANGLE = 1e-6
 # Where fewer views than K see a sample, the lumigraph's cut-off angle a_K is this many times the widest angle

@@ -16,10 +16,11 @@ import torch
 from torch import Tensor, nn
 
 from insertnerf_cli import __version__
-from insertnerf_cli.files.atomic import atomic_path
 from insertnerf_cli.config import ModelConfig, config_from_json, config_to_json
 from insertnerf_cli.errors import UserError, first_line
+from insertnerf_cli.files.atomic import atomic_path
 from insertnerf_cli.files.outdir import BUNDLED_WEIGHTS_DIR
+from insertnerf_cli.model.insertnerf import InsertNeRF
 
 CHECKPOINT_FORMAT = "insertnerf-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -126,8 +127,6 @@ def read_checkpoint(path: str | Path) -> Checkpoint:
 
 def build_model(checkpoint: Checkpoint, device: torch.device) -> nn.Module:
     """The InsertNeRF described by the checkpoint's config, with its weights, on ``device``."""
-    from insertnerf_cli.model import InsertNeRF  # the model package imports torch modules; load it only when needed
-
     try:
         model = InsertNeRF(checkpoint.model_config)
     except Exception as err:

@@ -4,17 +4,17 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from insertnerf_cli.config import ModelConfig
 from insertnerf_cli.cameras.rays import Rays
-from insertnerf_cli.model.compositing import Composite, composite, composite_weights
-from insertnerf_cli.model.guide import guide_weights
-from insertnerf_cli.model.sampling import RaySamples, importance_samples, stratified_samples
+from insertnerf_cli.config import ModelConfig
 from insertnerf_cli.model.aggregate import ScaleAggregator, angular_prior, reweigh
+from insertnerf_cli.model.compositing import Composite, composite, composite_weights
 from insertnerf_cli.model.consistency import colour_variance, sharpen
 from insertnerf_cli.model.encoder import UNetEncoder, pad_to_stride
+from insertnerf_cli.model.guide import guide_weights
 from insertnerf_cli.model.losses import compute_losses
 from insertnerf_cli.model.nerf import NeRFHead
 from insertnerf_cli.model.projection import project_samples, projection_matrices, ray_angle
+from insertnerf_cli.model.sampling import RaySamples, importance_samples, stratified_samples
 from insertnerf_cli.model.types import EncodedViews, LossTerms, RenderOutput, SampleFeatures, SourceViews
 
 # The infinity sample's depth in units of the ray's far bound (InsertNeRF.backdrop).

@@ -8,9 +8,9 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from insertnerf_cli.cameras.camera import check_shape
+from insertnerf_cli.cameras.rays import Rays
 from insertnerf_cli.config import ModelConfig
 from insertnerf_cli.model.compositing import psnr
-from insertnerf_cli.cameras.rays import Rays
 from insertnerf_cli.model.geometry_losses import NO_SURFACE, depth_loss, distortion_loss
 from insertnerf_cli.model.types import EncodedViews, LossTerms, RenderOutput
 

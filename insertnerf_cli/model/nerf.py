@@ -15,8 +15,14 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from insertnerf_cli.config import ModelConfig
-from insertnerf_cli.model.hypernet import (AppearanceHyper, ConcatAppearance, ConcatLayer, GeometryHyperLayer, count_parameters,
-                       matched_hidden)
+from insertnerf_cli.model.hypernet import (
+    AppearanceHyper,
+    ConcatAppearance,
+    ConcatLayer,
+    GeometryHyperLayer,
+    count_parameters,
+    matched_hidden,
+)
 
 
 class PositionalEncoding(nn.Module):

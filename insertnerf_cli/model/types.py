@@ -9,8 +9,8 @@ from torch import Tensor
 
 from insertnerf_cli.cameras.camera import Cameras, check_shape
 from insertnerf_cli.model.compositing import Composite
-from insertnerf_cli.model.sampling import RaySamples
 from insertnerf_cli.model.occlusion import Occlusion
+from insertnerf_cli.model.sampling import RaySamples
 
 
 @dataclass(frozen=True)

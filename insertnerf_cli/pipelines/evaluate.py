@@ -12,8 +12,14 @@ import numpy as np
 from tqdm import tqdm
 
 from insertnerf_cli.errors import UserError
-from insertnerf_cli.exporters.eval_outputs import (OWNER, REPORT_HTML, check_eval_outputs, prepare_side_by_sides,
-                                                   side_by_side, side_by_side_name)
+from insertnerf_cli.exporters.eval_outputs import (
+    OWNER,
+    REPORT_HTML,
+    check_eval_outputs,
+    prepare_side_by_sides,
+    side_by_side,
+    side_by_side_name,
+)
 from insertnerf_cli.exporters.outputs import write_png
 from insertnerf_cli.exporters.records import EvalConfig, EvalReport, EvalRun, ViewScore
 from insertnerf_cli.exporters.report.eval_page import eval_page

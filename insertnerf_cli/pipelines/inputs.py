@@ -6,17 +6,17 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import torch
 
 from insertnerf_cli.errors import UserError
+from insertnerf_cli.exporters.outputs import OWNER as RENDER_OWNER, POSES_DIR
 from insertnerf_cli.files.outdir import OutputRecord, remove_if_empty
-from insertnerf_cli.exporters.outputs import OWNER as RENDER_OWNER
-from insertnerf_cli.exporters.outputs import POSES_DIR
-
-if TYPE_CHECKING:
-    from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.finetune import FinetuneConfig, cached_finetune
+from insertnerf_cli.finetune.render_cache import RECORD, WEIGHTS
+from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses
+from insertnerf_cli.scenes import detect_format, find_images, load_scene
+from insertnerf_cli.scenes.points import ScenePoints
 
 # COLMAP's own project layout keeps the photos here (beside database.db and sparse/ once it has run).
 PROJECT_IMAGES = "images"
@@ -32,8 +32,6 @@ class Photos:
 
 def _image_fingerprint(folder: Path) -> list[list] | None:
     """Names, sizes and modification times of the images directly in ``folder`` (None for none)."""
-    from insertnerf_cli.scenes import find_images
-
     try:
         images = find_images(folder)
     except UserError:
@@ -44,8 +42,6 @@ def _image_fingerprint(folder: Path) -> list[list] | None:
 def unposed_photos(scene_dir: Path) -> Photos | None:
     """The photos to pose when ``scene_dir`` is no scene: its own images, else those of its images/ sub-folder
     (a COLMAP project before COLMAP ran); None when it is a scene (or neither, for load_scene to explain)."""
-    from insertnerf_cli.scenes import detect_format
-
     if detect_format(scene_dir) is not None:
         return None
     for folder in (scene_dir, scene_dir / PROJECT_IMAGES):
@@ -59,12 +55,8 @@ def posed_photos(photos: Photos, out_dir: Path, created: bool):
     """The scene pycolmap makes of a folder of photos, estimated once into OUT/poses and reused after.
 
     A failure leaves no trace in an OUT this run ``created`` (no record, no folder)."""
-    from insertnerf_cli.scenes import load_scene
-
     poses_dir = out_dir / POSES_DIR
     if not (poses_dir / "transforms.json").is_file():
-        from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses
-
         print(f"{photos.folder} is a folder of photos without poses: estimating them with COLMAP into {poses_dir} "
               "(once; later runs reuse them)", file=sys.stderr)
         OutputRecord(out_dir, RENDER_OWNER).claim(POSES_DIR)
@@ -85,9 +77,6 @@ def finetuned(scene_dir: Path, out_dir: Path, checkpoint: Path, minutes: float, 
     number of reference views, kept in OUT and reused by a later run with the same inputs. ``points``: the
     render's SfM points of the normalised scene, so the fine-tune need not
     triangulate again (None: it does when it must)."""
-    from insertnerf_cli.finetune import FinetuneConfig, cached_finetune
-    from insertnerf_cli.finetune.render_cache import RECORD, WEIGHTS
-
     OutputRecord(out_dir, RENDER_OWNER).claim(WEIGHTS, RECORD)
     ft = FinetuneConfig(minutes=minutes, views=views, resolution=resolution, sfm_depth=sfm_depth)
     return cached_finetune(scene_dir, out_dir, checkpoint, ft, torch.device(device), points)

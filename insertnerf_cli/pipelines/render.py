@@ -18,11 +18,26 @@ import torch
 from tqdm import tqdm
 
 from insertnerf_cli.config import config_to_json
-from insertnerf_cli.exporters.outputs import (CAMERAS_JSON, OWNER as RENDER_OWNER, POSES_DIR, VIDEOS, check_resumable,
-                                              check_resumable_scale, claim_render_outputs, depth_scale_for,
-                                              depth_to_float, depth_to_turbo, depth_to_uint16, ffmpeg_exe,
-                                              frame_paths, prepare_out_dir, write_cameras_json, write_frame,
-                                              write_state, write_video)
+from insertnerf_cli.exporters.outputs import (
+    CAMERAS_JSON,
+    OWNER as RENDER_OWNER,
+    POSES_DIR,
+    VIDEOS,
+    check_resumable,
+    check_resumable_scale,
+    claim_render_outputs,
+    depth_scale_for,
+    depth_to_float,
+    depth_to_turbo,
+    depth_to_uint16,
+    ffmpeg_exe,
+    frame_paths,
+    prepare_out_dir,
+    write_cameras_json,
+    write_frame,
+    write_state,
+    write_video,
+)
 from insertnerf_cli.exporters.pointcloud import write_pointcloud
 from insertnerf_cli.exporters.records import DEFAULT_FRAMES, RenderConfig, RenderSummary
 from insertnerf_cli.exporters.report.render_page import RenderPage, render_page

@@ -27,11 +27,17 @@ import torch
 from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
-from insertnerf_cli.poses.matching import match
-from insertnerf_cli.poses.reconstruction import (features_only, model_arrays, pair_matches, scaled_limits, torn_neighbours,
-                           undistort)
 from insertnerf_cli.poses.check import CheckLimits, PoseCheck, check_relative_poses
 from insertnerf_cli.poses.folder import OWNER, InputImages, check_output, read_inputs, staging_folder, write_scene
+from insertnerf_cli.poses.matching import match
+from insertnerf_cli.poses.reconstruction import (
+    features_only,
+    model_arrays,
+    pair_matches,
+    scaled_limits,
+    torn_neighbours,
+    undistort,
+)
 
 Report = Callable[[str], None]
 Matcher = Literal["auto", "exhaustive", "sequential", "chain"]

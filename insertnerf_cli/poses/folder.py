@@ -20,10 +20,16 @@ import cv2
 import numpy as np
 import torch
 
-from insertnerf_cli.files.atomic import process_alive
 from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.errors import SceneError, UserError
-from insertnerf_cli.files.outdir import OutputRecord, check_output as check_output_path, holds_files, move_into, record_tree
+from insertnerf_cli.files.atomic import process_alive
+from insertnerf_cli.files.outdir import (
+    OutputRecord,
+    check_output as check_output_path,
+    holds_files,
+    move_into,
+    record_tree,
+)
 from insertnerf_cli.poses.preview import write_camera_frustums, write_point_cloud
 from insertnerf_cli.scenes.images import IMAGE_EXTENSIONS, exif_orientation, find_images, read_rgb
 from insertnerf_cli.scenes.writers import write_nerfstudio_transforms

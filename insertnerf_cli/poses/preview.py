@@ -9,8 +9,8 @@ import numpy as np
 import torch
 import trimesh
 
-from insertnerf_cli.files.atomic import write_bytes
 from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.files.atomic import write_bytes
 
 # Frustum faces as vertex indices per camera: 0 = centre, 1..4 = image corners (top-left, top-right,
 # bottom-right, bottom-left), 5 = tip of the "up" tab above the top edge.

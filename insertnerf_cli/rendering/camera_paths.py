@@ -16,6 +16,7 @@ from torch import Tensor
 
 from insertnerf_cli.cameras.camera import Cameras, check_shape
 from insertnerf_cli.errors import UserError
+from insertnerf_cli.scenes.geometry import focus_point as least_squares_focus
 from insertnerf_cli.scenes.views import ViewMethod, nearest_views
 
 PathKind = Literal["orbit", "spiral", "input"]
@@ -70,8 +71,6 @@ def focus_point(cameras: Cameras) -> Tensor:
     When the axes are (nearly) parallel the least-squares system is singular; the fallback is one unit in front
     of the mean camera centre, along the mean axis.
     """
-    from insertnerf_cli.scenes.geometry import focus_point as least_squares_focus
-
     focus = least_squares_focus(cameras)
     if focus is None:
         return cameras.centers.mean(0) + torch.nn.functional.normalize(cameras.forward, dim=-1).mean(0)

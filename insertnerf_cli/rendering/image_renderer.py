@@ -1,4 +1,5 @@
-"""The chunked whole-image renderer: one frame of a camera through the model (compositing lives in compositing.py)."""
+"""The chunked whole-image renderer: one frame of a camera through the model (compositing lives in
+model/compositing.py)."""
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
@@ -10,10 +11,10 @@ import torch
 from torch import Tensor
 
 from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.cameras.rays import Rays, rays_for_image
 from insertnerf_cli.model import EncodedViews, InsertNeRF
 from insertnerf_cli.model.compositing import Composite
 from insertnerf_cli.model.guide import GuideOptions, guide_weights
-from insertnerf_cli.cameras.rays import Rays, rays_for_image
 from insertnerf_cli.model.sampling import RaySamples
 
 T = TypeVar("T")

@@ -12,8 +12,7 @@ import torch
 from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import EncodedViews, SourceViews
-from insertnerf_cli.model.checkpoint import bundled_checkpoint
-from insertnerf_cli.model.checkpoint import load_model as load_checkpoint
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model as load_checkpoint
 from insertnerf_cli.model.occlusion import Occlusion
 from insertnerf_cli.rendering.image_renderer import EXACT, ImageOutput, render_image
 from insertnerf_cli.rendering.options import RenderOptions

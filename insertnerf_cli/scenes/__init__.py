@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Callable
 
 from insertnerf_cli.errors import SceneError, os_error_message
+from insertnerf_cli.scenes import blender, colmap_model, dtu, llff, nerfstudio
 from insertnerf_cli.scenes.base import Layout, Scene
 from insertnerf_cli.scenes.images import IMAGE_EXTENSIONS, Distortion, find_images, read_rgb, resize
 from insertnerf_cli.scenes.normalize import Similarity, normalize_scene, walk_warning
@@ -26,8 +27,6 @@ Reader = Callable[[Path, str, tuple[float, float, float]], Scene]
 
 def _readers() -> dict[str, tuple[Callable[[Path], bool], Reader]]:
     """Format name -> (detector, reader), in detection order."""
-    from insertnerf_cli.scenes import blender, colmap_model, dtu, llff, nerfstudio
-
     return {
         "blender": (lambda r: bool(blender.split_files(r)), lambda r, i, b: blender.read_blender(r, b)),
         "nerfstudio": (lambda r: (r / nerfstudio.FILENAME).is_file(), lambda r, i, b: nerfstudio.read_nerfstudio(r, b)),

@@ -83,7 +83,7 @@ def _observed_depths(points: ScenePoints | None, cameras: Cameras) -> list[Tenso
 
 
 def read_colmap(root: Path, images: str, background: tuple[float, float, float]) -> Scene:
-    import pycolmap
+    import pycolmap  # deferred: its import installs glog's signal handlers
 
     model_dir = find_model(root)
     check_colmap_binary(model_dir)  # pycolmap trusts declared counts: a cut-short file could allocate without bound
@@ -132,7 +132,7 @@ def aligned_model_points(root: Path, c2w: Tensor, paths: list[Path]) -> ScenePoi
     the views observing each point in the cameras' order. None without such a model, with fewer than three
     matched images, or when the centres do not agree (ALIGN_TOLERANCE): the points then belong to another solution.
     """
-    import pycolmap
+    import pycolmap  # deferred: its import installs glog's signal handlers
 
     model_dir = find_model(root) or find_model(root / "colmap")
     if model_dir is None:

@@ -177,8 +177,9 @@ def check_views(views: ReadViews) -> None:
         & (torch.det(rot) > 0) & ((c2w[:, 3] - bottom).abs().amax(dim=-1) <= 1e-6)
     i = _first_bad(finite & rigid)
     if i is not None:
-        what = f"contains NaN, infinity or a coordinate beyond {MAX_COORD:g}" if not finite[i] else \
-            "is not a rigid camera pose (its rotation is scaled, mirrored or degenerate, or its last row is not 0 0 0 1)"
+        what = (f"contains NaN, infinity or a coordinate beyond {MAX_COORD:g}" if not finite[i] else
+                "is not a rigid camera pose (its rotation is scaled, mirrored or degenerate, or its last row is not "
+                "0 0 0 1)")
         raise SceneError(f"{where}: the pose of {_view_name(views, i)} {what}; {fix}")
 
 

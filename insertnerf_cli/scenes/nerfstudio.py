@@ -68,7 +68,7 @@ def _tracked_points(root: Path, meta: dict[str, Any], A_inv: Tensor) -> ScenePoi
     if not isinstance(folder, str) or not all(type(i) is int for i in ids):
         return None
     try:
-        import pycolmap
+        import pycolmap  # deferred: its import installs glog's signal handlers
 
         model_dir = safe_path(root, folder, "colmap_model")
         check_colmap_binary(model_dir)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterable, Literal, Sequence
+from typing import Iterable, Literal, Sequence
 
 import numpy as np
 import torch
@@ -16,9 +16,7 @@ from torch import Tensor
 
 from insertnerf_cli.cameras.camera import check_shape
 from insertnerf_cli.errors import UserError
-
-if TYPE_CHECKING:
-    from insertnerf_cli.scenes import Scene
+from insertnerf_cli.scenes.base import Scene
 
 ViewMethod = Literal["vector", "dist", "matrix"]
 VIEW_METHODS: tuple[str, ...] = ("vector", "dist", "matrix")

@@ -14,8 +14,8 @@ from typing import Any, Mapping, Sequence
 
 import torch
 
-from insertnerf_cli.files.atomic import write_json
 from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.files.atomic import write_json
 
 
 def _relative(path: str | os.PathLike, base: Path) -> str:

@@ -62,6 +62,7 @@ def near_angle(cameras: Cameras, options: OcclusionOptions = OcclusionOptions())
     return options.near_parallax / focal
 
 
-def occlusion(maps: Sequence[torch.Tensor], cameras: Cameras, options: OcclusionOptions = OcclusionOptions()) -> Occlusion:
+def occlusion(maps: Sequence[torch.Tensor], cameras: Cameras,
+              options: OcclusionOptions = OcclusionOptions()) -> Occlusion:
     """The Occlusion of V views from their reference_map()s (in ``cameras``' order)."""
     return Occlusion(torch.stack(list(maps)), near_angle(cameras, options), options.tolerance, options.min_visible)

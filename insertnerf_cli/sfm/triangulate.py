@@ -18,9 +18,12 @@ import torch
 from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.poses.estimate import pycolmap_log
 from insertnerf_cli.poses.folder import colmap_readable
+from insertnerf_cli.poses.reconstruction import cam_from_world
 from insertnerf_cli.scenes.colmap_model import model_points
 from insertnerf_cli.scenes.images import exif_orientation
 from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.scenes.views import nearest_views, view_rule
+from insertnerf_cli.sfm.epipolar import epipolar_matches, view_features
 
 # Each view is matched with this many of its nearest views (view_rule of the layout): a point then has the
 # observers it needs (MIN_OBSERVERS) without the cost of every pair (a 100-view capture: 800 pairs, not 4,950).
@@ -140,9 +143,6 @@ def _match_with_colmap(work: Path, db_path: Path, pairs: list[tuple[str, str]], 
 def _match_along_epipolar_lines(rec: "pycolmap.Reconstruction", db_path: Path, pairs: list[tuple[int, int]]) -> None:
     """Writes each image pair's matches along the epipolar lines of the model's poses (epipolar.py) into the
     database, as the verified matches the triangulator reads."""
-    from insertnerf_cli.poses.reconstruction import cam_from_world
-    from insertnerf_cli.sfm.epipolar import epipolar_matches, view_features
-
     features = {}
     with pycolmap.Database.open(db_path) as db:
         for image_id in sorted({i for pair in pairs for i in pair}):
@@ -186,8 +186,6 @@ def _database_ids(db_path: Path, names: list[str]) -> dict[str, tuple[int, int]]
 
 def _neighbour_pairs(cameras: Cameras, layout: str, neighbours: int) -> list[tuple[int, int]]:
     """Each view with its ``neighbours`` nearest views by render's rule, every pair once (a < b)."""
-    from insertnerf_cli.scenes.views import nearest_views, view_rule
-
     method = view_rule(layout)
     pairs = set()
     for a in range(len(cameras)):

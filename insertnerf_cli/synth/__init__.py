@@ -7,7 +7,14 @@ render.py + shading.py render each view -> capture.py develops it into an 8-bit 
 Blender-format folder. dataset.py runs scenes in parallel with a manifest and resume.
 """
 from insertnerf_cli.synth.capture import CaptureOptions
-from insertnerf_cli.synth.dataset import GENERATOR_VERSION, DatasetRun, Manifest, SynthOptions, build_dataset, generate_dataset
+from insertnerf_cli.synth.dataset import (
+           GENERATOR_VERSION,
+           DatasetRun,
+           Manifest,
+           SynthOptions,
+           build_dataset,
+           generate_dataset,
+)
 from insertnerf_cli.synth.scene import LAYOUTS, SceneSpec, render_scene
 
 __all__ = ["CaptureOptions", "DatasetRun", "GENERATOR_VERSION", "LAYOUTS", "Manifest", "SceneSpec", "SynthOptions",

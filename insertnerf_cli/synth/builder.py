@@ -5,7 +5,17 @@ from __future__ import annotations
 import numpy as np
 
 from insertnerf_cli.synth.geometry import Shape
-from insertnerf_cli.synth.world import Light, Material, Placed, Stage, World, ambient_pair, random_material, random_rotation, random_shape
+from insertnerf_cli.synth.world import (
+    Light,
+    Material,
+    Placed,
+    Stage,
+    World,
+    ambient_pair,
+    random_material,
+    random_rotation,
+    random_shape,
+)
 
 
 class Builder:

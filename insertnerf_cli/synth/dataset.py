@@ -20,8 +20,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator, Literal
 
-from insertnerf_cli.files.atomic import write_error, write_json
+import cv2
+import torch
+
 from insertnerf_cli.errors import UserError
+from insertnerf_cli.files.atomic import write_error, write_json
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.files.outdir import OutputRecord, check_output, foreign_entries, move_into, record_tree
 from insertnerf_cli.synth.capture import CaptureOptions
@@ -216,9 +219,6 @@ def _init_worker() -> None:
     SIGTERM, after every run and on Ctrl-C: a forked worker inherits the failure handler that pycolmap's logging
     installs when the parent imports it (with the other commands), and that handler printed a C++ stack trace
     for each worker, so SIGTERM gets its default action back."""
-    import cv2
-    import torch
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     torch.set_num_threads(1)
@@ -228,9 +228,6 @@ def _init_worker() -> None:
 @contextmanager
 def _single_threaded() -> Iterator[None]:
     """Torch and OpenCV on one thread while rendering in this process (restored afterwards)."""
-    import cv2
-    import torch
-
     before = torch.get_num_threads(), cv2.getNumThreads()
     torch.set_num_threads(1)
     cv2.setNumThreads(1)

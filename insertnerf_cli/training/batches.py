@@ -15,15 +15,15 @@ import torch
 from torch import Tensor, nn
 
 from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.cameras.rays import Rays, rays_from_pixels
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import InsertNeRF, LossTerms, SourceViews
 from insertnerf_cli.model.types import EncodedViews
-from insertnerf_cli.cameras.rays import Rays, rays_from_pixels
 from insertnerf_cli.scenes.views import ViewSampling
 from insertnerf_cli.training.data import ImageCache, TrainBatch
+from insertnerf_cli.training.device_data import SizeGroup, TrainingSet, gather_depths, gather_images
 from insertnerf_cli.training.feature_prior import FeaturePriors
 from insertnerf_cli.training.guide import simulated_prior
-from insertnerf_cli.training.device_data import SizeGroup, TrainingSet, gather_depths, gather_images
 
 _LEVELS = 255.0
 _SEED_LIMIT = 1 << 63

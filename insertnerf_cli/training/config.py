@@ -11,7 +11,7 @@ import torch
 
 from insertnerf_cli.config import ModelConfig, check_field_types, config_from_json
 from insertnerf_cli.errors import UserError
-
+from insertnerf_cli.model.checkpoint import read_checkpoint
 
 _SEED_LIMIT = 2 ** 63  # torch.manual_seed takes a signed 64-bit integer
 
@@ -166,9 +166,6 @@ def read_model_config(path: Path) -> ModelConfig:
 
 def saved_train_config(checkpoint_path: Path) -> TrainConfig:
     """The TrainConfig stored in a run's checkpoint (the base that --resume overrides with given flags)."""
-    # checkpoint imports the model package; keep config light
-    from insertnerf_cli.model.checkpoint import read_checkpoint
-
     if not Path(checkpoint_path).is_file():
         raise UserError(f"nothing to resume: {checkpoint_path} does not exist; start a new run without --resume.")
     state = read_checkpoint(checkpoint_path).train_state

@@ -17,9 +17,9 @@ from torch import Tensor
 from tqdm import tqdm
 
 from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.cameras.rays import Rays, rays_from_pixels
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.model import SourceViews
-from insertnerf_cli.cameras.rays import Rays, rays_from_pixels
 from insertnerf_cli.scenes import Scene, load_scene, normalize_scene
 from insertnerf_cli.scenes.views import ViewMethod, nearest_views, sample_training_views
 

@@ -1,4 +1,4 @@
-"""Fine samples guided in training as render guides them by SfM points (depth_prior.guide_weights).
+"""Fine samples guided in training as render guides them by SfM points (model.guide.guide_weights).
 
 Render and eval send most fine samples to a band around the depth of the scene's SfM points; placed by the
 coarse weights alone in training, the fine pass would never see the sample layout it renders with. A synth scene's

@@ -232,7 +232,8 @@ def _train_step(s: Session, divergence: _Divergence) -> LossTerms:
             raise
         first = (str(err).strip().splitlines() or [""])[-1][:200]
         raise UserError(f"torch.compile failed at step {s.step + 1} ({type(err).__name__}: {first}); train "
-                        "without --compile (checkpoints already written are kept; --resume goes on from them).") from None
+                        "without --compile (checkpoints already written are kept; --resume goes on from them)."
+                        ) from None
     divergence.record(terms.total, s.step + 1, s.data.groups[draw.group].scene_index[draw.scenes])
     terms.total.backward()
     s.optimizer.step()

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from insertnerf_cli.files.atomic import atomic_path, write_error, write_json
 from insertnerf_cli.config import config_to_json
 from insertnerf_cli.errors import UserError
+from insertnerf_cli.files.atomic import atomic_path, write_error, write_json
 from insertnerf_cli.files.outdir import OutputRecord, check_not_inside_inputs, check_output
 from insertnerf_cli.training.config import TrainConfig
 

@@ -11,24 +11,40 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from insertnerf_cli.files.atomic import WriteError
-from insertnerf_cli.model.checkpoint import Checkpoint, TrainState, load_weights, read_checkpoint, save_checkpoint
+from insertnerf_cli.cameras.rays import Rays
 from insertnerf_cli.config import config_to_json
 from insertnerf_cli.errors import UserError
+from insertnerf_cli.files.atomic import WriteError
 from insertnerf_cli.files.lock import lock_output
 from insertnerf_cli.model import InsertNeRF, LossTerms, SourceViews
-from insertnerf_cli.cameras.rays import Rays
+from insertnerf_cli.model.checkpoint import Checkpoint, TrainState, load_weights, read_checkpoint, save_checkpoint
 from insertnerf_cli.training import distributed
-from insertnerf_cli.training.config import DATA_FIELDS, TrainConfig, model_differences
 from insertnerf_cli.training.batches import BatchObjective, DrawGenerators, StepStream, check_batch_scenes
-from insertnerf_cli.training.data import (ImageCache, TrainScene, ViewDraw, check_view_counts, find_scenes, split_scenes,
-                   validation_draws)
+from insertnerf_cli.training.config import DATA_FIELDS, TrainConfig, model_differences
+from insertnerf_cli.training.data import (
+    ImageCache,
+    TrainScene,
+    ViewDraw,
+    check_view_counts,
+    find_scenes,
+    split_scenes,
+    validation_draws,
+)
 from insertnerf_cli.training.device_data import TrainingSet, load_training_set
 from insertnerf_cli.training.distributed import DistContext
 from insertnerf_cli.training.feature_prior import FeaturePriors
 from insertnerf_cli.training.rng import capture_rng, restore_rng
-from insertnerf_cli.training.run_dir import (OWNER, RunFiles, check_run_dir, claim_run, clear_run, read_splits, truncate_metrics,
-                      write_run_config, write_splits)
+from insertnerf_cli.training.run_dir import (
+    OWNER,
+    RunFiles,
+    check_run_dir,
+    claim_run,
+    clear_run,
+    read_splits,
+    truncate_metrics,
+    write_run_config,
+    write_splits,
+)
 from insertnerf_cli.training.warm_start import warm_start
 
 Say = Callable[[str], None]
@@ -191,7 +207,8 @@ def _restore(session: Session, checkpoint: Checkpoint) -> None:
     try:
         session.optimizer.load_state_dict(state.optimizer)
     except (ValueError, KeyError) as err:
-        raise UserError(f"{checkpoint.path}: optimizer state does not fit the model ({err}); start a new run.") from None
+        raise UserError(f"{checkpoint.path}: optimizer state does not fit the model ({err}); "
+                        "start a new run.") from None
     session.step = session.start_step = session.saved_step = state.step
     session.elapsed_before = state.elapsed_s
     session.best_val_psnr = state.best_val_psnr

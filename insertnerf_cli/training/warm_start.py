@@ -14,8 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from insertnerf_cli.model.checkpoint import Checkpoint
 from insertnerf_cli.errors import UserError
+from insertnerf_cli.model.checkpoint import Checkpoint
 
 # The tensors whose sample axis sums over the samples (its entries shrink as samples get denser), by name suffix.
 _SUMS_OVER_SAMPLES = ("mix.weight", "to_nodes")

@@ -5,9 +5,9 @@ from pathlib import Path
 
 import click
 
+from insertnerf_cli.cli.commands.common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
 from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from insertnerf_cli.finetune import FinetuneConfig, FinetuneResult, finetune
-from insertnerf_cli.cli.commands.common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
 
 _DEFAULT_MINUTES = FinetuneConfig.minutes
 _DEFAULTS = FinetuneConfig()

@@ -7,15 +7,15 @@ from typing import Any, Callable
 
 import click
 
-from insertnerf_cli.model.checkpoint import BUNDLED_MODELS, DEFAULT_MODEL, bundled_checkpoint
+from insertnerf_cli.cli.commands.common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
+from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.exporters.outputs import DEFAULT_DEPTH_FORMAT, DEPTH_FORMATS
-from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
-from insertnerf_cli.exporters.records import DEFAULT_FPS, RenderConfig
-from insertnerf_cli.pipelines.render import render_scene
 from insertnerf_cli.exporters.pointcloud import DEFAULT_POINTS
+from insertnerf_cli.exporters.records import DEFAULT_FPS, RenderConfig
+from insertnerf_cli.model.checkpoint import BUNDLED_MODELS, DEFAULT_MODEL, bundled_checkpoint
+from insertnerf_cli.pipelines.render import render_scene
 from insertnerf_cli.rendering.camera_paths import PATH_KINDS
-from insertnerf_cli.cli.commands.common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
 
 
 def model_options(func: Callable[..., Any] | None = None, *, views_option: Callable | None = None) -> Any:

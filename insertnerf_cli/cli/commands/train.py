@@ -5,10 +5,10 @@ from pathlib import Path
 
 import click
 
+from insertnerf_cli.cli.commands.common import device_option, overwrite_option, resolve_device, user_errors
 from insertnerf_cli.training import TrainConfig, TrainResult, train as train_generator
 from insertnerf_cli.training.config import read_model_config, saved_train_config, with_overrides
 from insertnerf_cli.training.run_dir import RunFiles
-from insertnerf_cli.cli.commands.common import device_option, overwrite_option, resolve_device, user_errors
 
 
 @click.command("train")

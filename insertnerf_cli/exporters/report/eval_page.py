@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 
-from insertnerf_cli.exporters.eval_outputs import ERROR_VIS_MAX, side_by_side_name
 from insertnerf_cli.config import config_to_json
+from insertnerf_cli.exporters.eval_outputs import ERROR_VIS_MAX, side_by_side_name
 from insertnerf_cli.exporters.records import EvalReport, EvalRun
 from insertnerf_cli.exporters.report.html import duration, esc, link, options_table, page, settings_table, table
 from insertnerf_cli.exporters.report.svg import line_chart

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from insertnerf_cli.cameras.camera import Cameras
-from insertnerf_cli.exporters.outputs import CAMERAS_JSON, depth_name, frame_name
 from insertnerf_cli.config import config_to_json
+from insertnerf_cli.exporters.outputs import CAMERAS_JSON, depth_name, frame_name
 from insertnerf_cli.exporters.records import RenderConfig, RenderSummary
 from insertnerf_cli.exporters.report.html import duration, esc, link, options_table, page, settings_table, table
 from insertnerf_cli.exporters.report.svg import ViewAxes, cameras_views
