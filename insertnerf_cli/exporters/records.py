@@ -20,8 +20,10 @@ class RenderConfig:
 
     Attributes:
         path: "orbit", "spiral", "input", or None to choose by the scene's layout (orbit for object-centric).
+        path_file: a camera path file instead (nerfstudio camera_path.json or a transforms.json of target cameras;
+            rendering/path_files.py): its cameras exactly, in the scene's units and axes.
         frames: frames of an orbit/spiral (None = DEFAULT_FRAMES); for "input", None = every input view.
-        fps: frame rate of the videos.
+        fps: frame rate of the videos (None: the path file's, else DEFAULT_FPS).
         resolution: long side of the frames in pixels (None = the images' size).
         views: reference views per frame.
         checkpoint: generator weights (None = the bundled pretrained ones).
@@ -40,7 +42,8 @@ class RenderConfig:
 
     path: str | None = None
     frames: int | None = None
-    fps: float = DEFAULT_FPS
+    fps: float | None = None
+    path_file: Path | None = None
     resolution: int | None = DEFAULT_RESOLUTION
     views: int = DEFAULT_VIEWS
     checkpoint: Path | None = None

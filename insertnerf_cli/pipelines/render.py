@@ -39,14 +39,17 @@ from insertnerf_cli.exporters.outputs import (
     write_video,
 )
 from insertnerf_cli.exporters.pointcloud import write_pointcloud
-from insertnerf_cli.exporters.records import DEFAULT_FRAMES, RenderConfig, RenderSummary
+from insertnerf_cli.errors import UserError
+from insertnerf_cli.exporters.records import DEFAULT_FPS, DEFAULT_FRAMES, RenderConfig, RenderSummary
 from insertnerf_cli.exporters.report.render_page import RenderPage, render_page
 from insertnerf_cli.files.atomic import write_bytes
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.files.outdir import check_output
 from insertnerf_cli.model.checkpoint import checkpoint_sha256
 from insertnerf_cli.pipelines.inputs import finetuned, posed_photos, unposed_photos
-from insertnerf_cli.rendering.camera_paths import CameraPath, default_path_kind, make_path, with_reference_bounds
+from insertnerf_cli.rendering.camera_paths import (CameraPath, default_path_kind, given_path, make_path,
+                                                  with_reference_bounds)
+from insertnerf_cli.rendering.path_files import PathFile, read_path_file
 from insertnerf_cli.rendering.view_renderer import ViewRenderer, checkpoint_path, load_model
 from insertnerf_cli.scenes import Scene, Similarity, load_scene, normalize_scene, walk_warning
 from insertnerf_cli.scenes.views import view_rule
@@ -61,9 +64,12 @@ POINTCLOUD_PLY = "pointcloud.ply"
 
 
 # ---------------------------------------------------------------------------------------------------- render
-def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, images: list | None) -> dict:
+def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, images: list | None,
+                  path_file: PathFile | None) -> dict:
     """Everything that changes the frames: a re-run with an equal state may resume."""
-    return {"version": STATE_VERSION, "scene": str(scene_dir.resolve()), "images": images, "path": config.path,
+    path = config.path if path_file is None else "file"
+    return {"version": STATE_VERSION, "scene": str(scene_dir.resolve()), "images": images, "path": path,
+            **({} if path_file is None else {"path_file_sha256": path_file.sha256}),
             "frames": config.frames, "resolution": config.resolution, "views": config.views, "exact": config.exact,
             "checkpoint_sha256": checkpoint_sha256(checkpoint), "depth_format": config.depth_format,
             **({} if config.sfm_depth else {"sfm_depth": False}),  # states written before the prior stay valid
@@ -71,15 +77,21 @@ def _render_state(scene_dir: Path, checkpoint: Path, config: RenderConfig, image
             "options": config_to_json(config.options)}
 
 
-def _plan(scene: Scene, config: RenderConfig) -> tuple[Scene, Similarity, CameraPath]:
-    """(normalised scene, its Similarity, the CameraPath to render)."""
+def _plan(scene: Scene, config: RenderConfig,
+          path_file: PathFile | None) -> tuple[Scene, Similarity, CameraPath]:
+    """(normalised scene, its Similarity, the CameraPath to render: the path file's cameras moved into the
+    normalised world, or the kind ``config.path`` names)."""
     if (warning := walk_warning(scene)) is not None:
         print(warning, file=sys.stderr, flush=True)
     scene, similarity = normalize_scene(scene)
-    kind = config.path or default_path_kind(scene.layout)
-    frames = config.frames if config.frames is not None or kind == "input" else DEFAULT_FRAMES
-    path = make_path(kind, scene.cameras, scene.near, scene.far, frames if frames is not None else len(scene),
-                     scene.size_for(config.resolution))
+    if path_file is not None:
+        given = similarity.apply_cameras(path_file.cameras.to(dtype=scene.cameras.dtype))
+        path = given_path(scene.cameras, scene.near, scene.far, given, config.resolution)
+    else:
+        kind = config.path or default_path_kind(scene.layout)
+        frames = config.frames if config.frames is not None or kind == "input" else DEFAULT_FRAMES
+        path = make_path(kind, scene.cameras, scene.near, scene.far, frames if frames is not None else len(scene),
+                         scene.size_for(config.resolution))
     path = with_reference_bounds(path, scene.cameras, scene.near, scene.far, config.views, view_rule(scene.layout))
     return scene, similarity, path
 
@@ -94,18 +106,23 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     """
     started = time.perf_counter()
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
+    path_file = None if config.path_file is None else read_path_file(config.path_file)
+    if path_file is not None and (config.path is not None or config.frames is not None):
+        raise UserError("a camera path file gives the frames itself: leave out the path kind and --frames")
+    fps = config.fps if config.fps is not None else (path_file.fps if path_file and path_file.fps else DEFAULT_FPS)
+    config = replace(config, fps=fps)
     check_output(out_dir, [scene_dir], kind="input scene")
     ffmpeg_exe()  # before any long work: the videos need it
     checkpoint = checkpoint_path(config.checkpoint)
     photos = unposed_photos(scene_dir)
     # A bad scene, path or checkpoint fails here, before OUT is touched.
-    planned = _plan(load_scene(scene_dir), config) if photos is None else None
+    planned = _plan(load_scene(scene_dir), config, path_file) if photos is None else None
     model = load_model(checkpoint, config.device)
-    state = _render_state(scene_dir, checkpoint, config, photos and photos.fingerprint)
+    state = _render_state(scene_dir, checkpoint, config, photos and photos.fingerprint, path_file)
     created = not out_dir.exists()
     lock_output(out_dir, RENDER_OWNER)  # one writer per folder (lock.py)
     prepare_out_dir(out_dir, state, config.overwrite)
-    scene, similarity, path = planned or _plan(posed_photos(photos, out_dir, created), config)
+    scene, similarity, path = planned or _plan(posed_photos(photos, out_dir, created), config, path_file)
     user_cams = similarity.inverse().apply_cameras(path.cameras)
     check_resumable(out_dir, user_cams)  # before the long work: triangulating, fine-tuning
     if config.sfm_depth:  # once: the fine-tune's prior takes the same points (it counts its usable views' only)
@@ -130,6 +147,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     check_resumable_scale(out_dir, len(path), scale)
     write_cameras_json(out_dir / CAMERAS_JSON, user_cams, near, far, scale, config.depth_format,
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
+                              **({} if path_file is None else {"path_file": str(path_file.source.resolve())}),
                               "normalization": similarity.to_json()})
     rendered, resumed, seconds, clipped = _render_frames(renderer, path, out_dir, similarity.scale, scale,
                                                          config.depth_format)

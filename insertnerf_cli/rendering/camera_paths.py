@@ -207,6 +207,18 @@ def input_path(cameras: Cameras, near: Tensor, far: Tensor, size: tuple[int, int
                       focus_point(cameras), source_index=index)
 
 
+def given_path(cameras: Cameras, near: Tensor, far: Tensor, given: Cameras, resolution: int | None) -> CameraPath:
+    """The ``given`` cameras (a path file's, already in the normalised world) at their own size, or scaled down so
+    that the long side is ``resolution`` (never up); each frame's bounds start as the inputs' widest
+    (with_reference_bounds then narrows them to its references')."""
+    h, w = given.height, given.width
+    if resolution and resolution < max(h, w):
+        h, w = max(1, round(h * resolution / max(h, w))), max(1, round(w * resolution / max(h, w)))
+    frames = len(given)
+    return CameraPath("file", given.rescale(h, w), near.min().expand(frames).clone(), far.max().expand(frames).clone(),
+                      focus_point(given))
+
+
 def make_path(kind: str, cameras: Cameras, near: Tensor, far: Tensor, frames: int,
               size: tuple[int, int]) -> CameraPath:
     """Dispatch on ``kind`` ("orbit", "spiral" or "input"); see the functions above."""

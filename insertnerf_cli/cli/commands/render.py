@@ -71,13 +71,15 @@ def chosen_weights(model: str | None, checkpoint: Path | None) -> Path | None:
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder (frames/, depth/, depth_vis/, video.mp4, depth.mp4, cameras.json, index.html); "
                    "not inside SCENE_DIR. --overwrite removes only what render wrote there.")
-@click.option("--path", "path_kind", type=click.Choice(PATH_KINDS),
+@click.option("--path", "path_kind", metavar="[orbit|spiral|input|FILE]",
               help="Camera path; default: orbit for object-centric/360 captures, spiral for forward-facing ones; "
-                   "input re-renders the input poses.")
+                   "input re-renders the input poses; FILE: a nerfstudio camera_path.json (its viewer's export) or a "
+                   "transforms.json of target cameras, followed exactly, in the scene's units and axes "
+                   "(docs/commands/render.md).")
 @click.option("--frames", type=click.IntRange(min=1),
               help="Frames of the path [default: 30; for --path input every input view].")
-@click.option("--fps", type=FiniteFloat(min=0, min_open=True), default=DEFAULT_FPS, show_default=True,
-              help="Frame rate of the videos.")
+@click.option("--fps", type=FiniteFloat(min=0, min_open=True),
+              help=f"Frame rate of the videos.  [default: a path file's fps, else {DEFAULT_FPS:g}]")
 @click.option("--finetune", "finetune_minutes", type=FiniteFloat(min=0, min_open=True),
               help="First fine-tune the weights on SCENE_DIR's own photos for this many minutes (kept in "
                    "OUT/finetune.pt and reused by a re-run; see `insertnerf finetune`).")
@@ -94,7 +96,7 @@ def chosen_weights(model: str | None, checkpoint: Path | None) -> Path | None:
 @device_option
 @overwrite_option
 @user_errors
-def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float, views: int,
+def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float | None, views: int,
            resolution: int, model: str, checkpoint: Path | None, chunk: int, exact: bool, sfm_depth: bool,
            device: str, overwrite: bool, finetune_minutes: float | None, depth_format: str, pointcloud: bool,
            pointcloud_points: int) -> None:
@@ -108,7 +110,15 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
     Example:
       insertnerf render photos/ --out views/ --frames 60 --resolution 320
     """
-    config = RenderConfig(path=path_kind, frames=frames, fps=fps, resolution=resolution or None, views=views,
+    path_file = None
+    if path_kind is not None and path_kind not in PATH_KINDS:
+        path_file, path_kind = Path(path_kind), None
+        if not path_file.is_file():
+            raise UserError(f"--path {path_file}: no such file, and not a path kind ({', '.join(PATH_KINDS)}); "
+                            "give orbit, spiral, input or a camera path file")
+        if frames is not None:
+            raise UserError("--frames does not apply to --path FILE: the file gives every frame")
+    config = RenderConfig(path=path_kind, path_file=path_file, frames=frames, fps=fps, resolution=resolution or None, views=views,
                           checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)),
                           chunk=chunk, exact=exact, sfm_depth=sfm_depth, overwrite=overwrite,
                           finetune_minutes=finetune_minutes,
