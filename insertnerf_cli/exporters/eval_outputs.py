@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 
 from insertnerf_cli.errors import UserError
-from insertnerf_cli.exporters.outputs import FRAME_GLOB, frame_name, to_uint8
+from insertnerf_cli.exporters.outputs import FRAME_GLOB, POINTS_DIR, frame_name, to_uint8
 from insertnerf_cli.files.outdir import OutputRecord, check_output, holds_files
 
 OWNER = "eval"
@@ -49,7 +49,7 @@ def prepare_side_by_sides(out_dir: Path | None, held: Sequence[int], counts: Seq
     if out_dir is None:
         return
     record = OutputRecord(out_dir, OWNER)
-    record.remove(legacy=_EVAL_LEGACY_OUTPUTS)
+    record.remove(legacy=_EVAL_LEGACY_OUTPUTS, keep=(POINTS_DIR,))  # the SfM points stay: keyed by the scene
     several = len(counts) > 1
     folders = [f"views_{n}" for n in counts] if several else []
     record.claim(*folders, *(side_by_side_name(i, n, several) for n in counts for i in held), REPORT_HTML)

@@ -36,6 +36,9 @@ CAMERAS_JSON = "cameras.json"
 OWNER = "render"  # the name of its list in an output record (outdir.py)
 STATE_FILE = "render_config.json"  # the settings the frames depend on: equal settings may resume
 POSES_DIR = "poses"  # poses pycolmap estimated for a folder of photos
+# SfM points triangulated at the scene's poses, kept for later runs (sfm/points_cache.py); kept by --overwrite too:
+# each file is keyed by the photos and poses it was made from.
+POINTS_DIR = "points"
 # What renders of versions without an output record wrote: the only names --overwrite removes from such a folder.
 FRAME_GLOB = "[0-9][0-9][0-9][0-9][0-9].png"
 LEGACY_OUTPUTS = (*(f"{d}/{FRAME_GLOB}" for d in FRAME_DIRS), *(f"{d}/" for d in FRAME_DIRS), *VIDEOS,
@@ -321,7 +324,8 @@ def prepare_out_dir(out_dir: Path, state: dict, overwrite: bool) -> None:
                             "write the render beside them (they are kept), or choose another --out")
     # Poses estimated from the very same photos stay valid whatever else changed.
     same_photos = old is not None and old.get("images") == state.get("images")
-    OutputRecord(out_dir, OWNER).remove(legacy=LEGACY_OUTPUTS, keep=(POSES_DIR,) if same_photos else ())
+    OutputRecord(out_dir, OWNER).remove(legacy=LEGACY_OUTPUTS,
+                                       keep=(POSES_DIR, POINTS_DIR) if same_photos else (POINTS_DIR,))
     if not same_photos and (out_dir / POSES_DIR).is_dir():
         OutputRecord(out_dir / POSES_DIR, POSES_OWNER).remove(legacy=POSES_LEGACY_OUTPUTS)
         remove_if_empty(out_dir / POSES_DIR)

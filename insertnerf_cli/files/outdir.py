@@ -179,6 +179,11 @@ def _remove_one(path: Path) -> None:
         temp.unlink(missing_ok=True)
 
 
+def record_name(root: Path, path: Path) -> str:
+    """``path`` (inside ``root``) as a record names it: relative to root, with forward slashes."""
+    return Path(path).relative_to(root).as_posix()
+
+
 def remove_if_empty(folder: Path) -> None:
     """Remove ``folder`` if nothing is left in it (a user's file inside keeps it)."""
     try:

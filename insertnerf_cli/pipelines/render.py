@@ -21,6 +21,7 @@ from insertnerf_cli.config import config_to_json
 from insertnerf_cli.exporters.outputs import (
     CAMERAS_JSON,
     OWNER as RENDER_OWNER,
+    POINTS_DIR,
     POSES_DIR,
     VIDEOS,
     check_resumable,
@@ -44,7 +45,7 @@ from insertnerf_cli.exporters.records import DEFAULT_FPS, DEFAULT_FRAMES, Render
 from insertnerf_cli.exporters.report.render_page import RenderPage, render_page
 from insertnerf_cli.files.atomic import write_bytes
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
-from insertnerf_cli.files.outdir import check_output
+from insertnerf_cli.files.outdir import OutputRecord, check_output, record_name
 from insertnerf_cli.model.checkpoint import checkpoint_sha256
 from insertnerf_cli.pipelines.inputs import finetuned, posed_photos, unposed_photos
 from insertnerf_cli.rendering.camera_paths import (CameraPath, default_path_kind, given_path, make_path,
@@ -126,7 +127,9 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     user_cams = similarity.inverse().apply_cameras(path.cameras)
     check_resumable(out_dir, user_cams)  # before the long work: triangulating, fine-tuning
     if config.sfm_depth:  # once: the fine-tune's prior takes the same points (it counts its usable views' only)
-        scene = with_points(scene)
+        record = OutputRecord(out_dir, RENDER_OWNER)
+        scene = with_points(scene, cache=out_dir / POINTS_DIR,
+                            claim=lambda file: record.claim(POINTS_DIR, record_name(out_dir, file)))
     if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
         # Where the render's triangulation found no point, the fine-tune's (from fewer photos) would not either:
         # it trains without the prior instead of trying again and warning twice.

@@ -10,7 +10,7 @@ import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import pycolmap
 import torch
@@ -24,6 +24,7 @@ from insertnerf_cli.scenes.images import exif_orientation
 from insertnerf_cli.scenes.points import ScenePoints
 from insertnerf_cli.scenes.views import nearest_views, view_rule
 from insertnerf_cli.sfm.epipolar import epipolar_matches, view_features
+from insertnerf_cli.sfm.points_cache import cache_file, cache_key, load_points, save_points
 
 # Each view is matched with this many of its nearest views (view_rule of the layout): a point then has the
 # observers it needs (MIN_OBSERVERS) without the cost of every pair (a 100-view capture: 800 pairs, not 4,950).
@@ -57,19 +58,33 @@ class TriangulateOptions:
     peak_threshold: float = PEAK_THRESHOLD
 
 
-def with_points(scene, views: Sequence[int] | None = None):
+def with_points(scene, views: Sequence[int] | None = None, cache: Path | None = None,
+                claim: Callable[[Path], None] | None = None, options: TriangulateOptions = TriangulateOptions()):
     """``scene`` itself when it has SfM points, else the scene with points triangulated from ``views`` at its
     poses; unchanged, saying so on the progress line (or on one warning line when COLMAP fails), when it finds
-    none (too few features, images too small)."""
+    none (too few features, images too small). With a ``cache`` folder (sfm/points_cache.py), points an earlier
+    run triangulated from the same photos, poses and views are loaded instead, and new ones are written there
+    (``claim`` is told each file's path before it is written, so that the output's record holds it)."""
     if scene.points is not None:
         return scene
+    chosen = sorted(set(range(len(scene)) if views is None else views))
+    stored = None if cache is None else cache_file(cache, cache_key(scene, chosen, options))
+    if stored is not None and (points := load_points(stored, len(scene))) is not None:
+        print(f"SfM points: {len(points)} kept from an earlier run in {stored} (same photos and poses)",
+              file=sys.stderr, flush=True)
+        return replace(scene, points=points) if len(points) else scene
     try:
-        points = triangulate_points(scene, views)
+        points = triangulate_points(scene, chosen, options)
     except (RuntimeError, ValueError, OSError) as error:  # pycolmap's failures: the render goes on without
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         print(f"warning: no SfM points could be triangulated at the scene's poses ({reason}); going on "
               "without the depth prior.", file=sys.stderr, flush=True)
         return scene
+    if stored is not None:
+        if claim is not None:
+            claim(stored)
+        stored.parent.mkdir(parents=True, exist_ok=True)
+        save_points(stored, points, len(scene))
     return replace(scene, points=points) if len(points) else scene  # triangulate_points' line said so
 
 

@@ -1,0 +1,89 @@
+"""Triangulated SfM points kept in OUT/points/ and reused by a later render or eval of the same scene."""
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+
+import cv2
+import pytest
+import torch
+from test_render_cli import make_checkpoint, run
+
+import textured_scenes
+from insertnerf_cli.scenes import load_scene
+from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
+from insertnerf_cli.sfm.points_cache import cache_file, cache_key, load_points, save_points
+from insertnerf_cli.sfm.triangulate import TriangulateOptions
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+VIEWS, SIZE = 8, 120
+
+
+@pytest.fixture(scope="module")
+def posed(tmp_path_factory):
+    """(a nerfstudio scene of the textured room at its true poses with no points, a tiny checkpoint)."""
+    truth = textured_scenes.render_scene(views=VIEWS, size=SIZE, arc_deg=70.0)
+    root = tmp_path_factory.mktemp("points_cache")
+    (root / "scene" / "images").mkdir(parents=True)
+    names = [f"images/view_{i:02d}.png" for i in range(VIEWS)]
+    for name, image in zip(names, truth.images):
+        cv2.imwrite(str(root / "scene" / name), image[..., ::-1])
+    write_nerfstudio_transforms(root / "scene" / "transforms.json", truth.cameras, names, near=0.5, far=8.0)
+    return root / "scene", make_checkpoint(root / "tiny.pt")
+
+
+def test_points_round_trip_with_their_observations_and_a_bad_file_is_ignored(tmp_path):
+    xyz = torch.randn(5, 3, dtype=torch.float64)
+    observed = (torch.tensor([0, 2, 4]), torch.tensor([], dtype=torch.int64), torch.tensor([1, 2]))
+    path = tmp_path / "p.npz"
+    save_points(path, ScenePoints(xyz, observed), 3)
+    loaded = load_points(path, 3)
+    assert torch.equal(loaded.xyz, xyz) and all(torch.equal(a, b) for a, b in zip(loaded.observed, observed))
+    assert load_points(path, 4) is None  # written for a scene of another view count
+    assert load_points(tmp_path / "missing.npz", 3) is None
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    assert load_points(tmp_path / "bad.npz", 3) is None
+
+
+def test_the_key_follows_the_photos_the_poses_and_the_views(posed):
+    scene = load_scene(posed[0])
+    options = TriangulateOptions()
+    key = cache_key(scene, range(VIEWS), options)
+    assert key == cache_key(load_scene(posed[0]), range(VIEWS), options)
+    assert key != cache_key(scene, range(VIEWS - 1), options)
+    moved = scene.cameras.c2w.clone()
+    moved[0, 0, 3] += 1e-3
+    assert key != cache_key(replace(scene, cameras=replace(scene.cameras, c2w=moved)), range(VIEWS), options)
+    photo = scene.image_paths[0]
+    stat = photo.stat()
+    os.utime(photo, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))  # the photo was replaced
+    assert key != cache_key(load_scene(posed[0]), range(VIEWS), options)
+    os.utime(photo, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+
+
+def test_a_second_render_at_another_resolution_reuses_the_points(posed, tmp_path):
+    scene, ckpt = posed
+    out = tmp_path / "views"
+    args = ["render", scene, "--out", out, "--checkpoint", ckpt, "--device", "cpu", "--views", 3, "--frames", 1]
+    first = run(*args, "--resolution", 32)
+    assert first.exit_code == 0, first.output
+    assert "triangulating SfM points" in first.output
+    stored = sorted((out / "points").glob("*.npz"))
+    assert len(stored) == 1 and len(load_points(stored[0], VIEWS)) > 50
+    second = run(*args, "--resolution", 24, "--overwrite")
+    assert second.exit_code == 0, second.output
+    assert "triangulating" not in second.output and "kept from an earlier run" in second.output
+    assert sorted((out / "points").glob("*.npz")) == stored
+    assert stored[0] == cache_file(out / "points", stored[0].stem)
+
+
+def test_eval_with_out_keeps_the_points_of_its_references(posed, tmp_path):
+    scene, ckpt = posed
+    args = ["eval", scene, "--checkpoint", ckpt, "--device", "cpu", "--views", 3, "--resolution", 24,
+            "--out", tmp_path / "report"]
+    first = run(*args)
+    assert first.exit_code == 0, first.output
+    assert len(list((tmp_path / "report" / "points").glob("*.npz"))) == 1
+    second = run(*args, "--overwrite")
+    assert second.exit_code == 0 and "kept from an earlier run" in second.output
