@@ -28,6 +28,7 @@ from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.poses.check import CheckLimits, PoseCheck, check_relative_poses
+from insertnerf_cli.poses.child import run_in_child
 from insertnerf_cli.poses.folder import OWNER, InputImages, check_output, read_inputs, staging_folder, write_scene
 from insertnerf_cli.poses.matching import match
 from insertnerf_cli.poses.reconstruction import (
@@ -207,7 +208,7 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
     """
     images_dir, out_dir = Path(images_dir), Path(out_dir)
     check_output(images_dir, out_dir, options.overwrite)
-    lock_output(out_dir, OWNER)
+    lock_output(out_dir, OWNER, is_dir=False)  # beside the folder: a killed run leaves no folder that is not a scene
     stages = _Stages(report, total=6)
     stages.start("reading images", str(images_dir))
     with staging_folder(out_dir) as tmp, pycolmap_log(options.verbose):
@@ -338,10 +339,11 @@ def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads:
                  f"{options.max_image_size} px, {threads} threads")
     db_path.parent.mkdir(parents=True, exist_ok=True)
     extraction = pycolmap.FeatureExtractionOptions(max_image_size=options.max_image_size, num_threads=threads)
-    pycolmap.extract_features(db_path, inputs.folder, image_names=list(inputs.names),
-                              camera_mode=pycolmap.CameraMode.SINGLE,
-                              reader_options=pycolmap.ImageReaderOptions(camera_model=options.camera_model),
-                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    reader = pycolmap.ImageReaderOptions(camera_model=options.camera_model)
+    run_in_child(lambda send: pycolmap.extract_features(db_path, inputs.folder, image_names=list(inputs.names),
+                                                        camera_mode=pycolmap.CameraMode.SINGLE,
+                                                        reader_options=reader, extraction_options=extraction,
+                                                        device=pycolmap.Device.cpu))
     with pycolmap.Database.open(db_path) as db:
         read = {image.name for image in db.read_all_images()}
         stages.done(f"{db.num_keypoints()} keypoints in {db.num_images()} images")
@@ -399,13 +401,21 @@ def _incremental(inputs: InputImages, out: Path, options: PosesOptions, init_tri
     if init_tri_angle is not None:
         mapping.mapper.init_min_tri_angle = init_tri_angle
     out.mkdir(parents=True, exist_ok=True)
-    models = pycolmap.incremental_mapping(out.parent / "database.db", inputs.folder, out, options=mapping,
-                                          next_image_callback=on_image)
+
+    def mapping_run(send: Callable[[object], None]) -> dict[int, int]:  # in the child: {model: registered images}
+        models = pycolmap.incremental_mapping(out.parent / "database.db", inputs.folder, out, options=mapping,
+                                              next_image_callback=lambda: send("image"))
+        for key, model in models.items():  # the parent reads the models from their folders
+            (out / str(key)).mkdir(parents=True, exist_ok=True)
+            model.write(out / str(key))
+        return {key: model.num_reg_images() for key, model in models.items()}
+
+    models = run_in_child(mapping_run, lambda message: on_image())
     if not models:  # pycolmap logs "Failed to create any sparse model" and returns {} without raising
         return None, out, []
-    best = max(models, key=lambda k: models[k].num_reg_images())
-    others = sorted((m.num_reg_images() for k, m in models.items() if k != best), reverse=True)
-    return models[best], out / str(best), others
+    best = max(models, key=lambda k: models[k])
+    others = sorted((count for k, count in models.items() if k != best), reverse=True)
+    return pycolmap.Reconstruction(out / str(best)), out / str(best), others
 
 
 def _torn(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages,

@@ -17,6 +17,8 @@ from typing import Callable
 
 import pycolmap
 
+from insertnerf_cli.poses.child import run_in_child
+
 POLL_S = 2.5  # how often the database is counted (a child process each time); ticks are rate-limited by the caller
 _COUNT_SCRIPT = ("import pathlib, sqlite3, sys\n"
                  "uri = pathlib.Path(sys.argv[1]).resolve().as_uri() + '?mode=ro'\n"
@@ -52,8 +54,7 @@ def run_with_progress(match: Callable[[], None], db_path: Path, tick: Callable[[
     """Run ``match`` (a pycolmap matcher call writing into ``db_path``) while a helper thread has the pairs written
     so far counted every POLL_S seconds and passed to ``tick``.
 
-    The matcher itself stays in this thread: pycolmap answers Ctrl-C there (a clean KeyboardInterrupt within
-    seconds); run in a worker thread instead, COLMAP aborted the whole process on Ctrl-C.
+    The matcher runs in a child process (child.run_in_child), so that Ctrl-C stops it within a second.
     """
     stop = threading.Event()
 
@@ -66,7 +67,7 @@ def run_with_progress(match: Callable[[], None], db_path: Path, tick: Callable[[
     poller = threading.Thread(target=poll, name="matching-progress", daemon=True)
     poller.start()
     try:
-        match()
+        run_in_child(lambda send: match())
     finally:
         stop.set()
         poller.join()
