@@ -16,6 +16,7 @@ import pycolmap
 import torch
 
 from insertnerf_cli.cameras.camera import Cameras
+from insertnerf_cli.poses.child import run_in_child
 from insertnerf_cli.poses.estimate import pycolmap_log
 from insertnerf_cli.poses.folder import colmap_readable
 from insertnerf_cli.poses.reconstruction import cam_from_world
@@ -49,13 +50,14 @@ class TriangulateOptions:
     """How `triangulate_points` works: pairs per view, SIFT image size, CPU threads for feature extraction and
     COLMAP's matching (-1: all; the epipolar matcher runs on torch's threads), matches searched along the known
     epipolar lines (sfm/epipolar.py; False: COLMAP's matcher, which knows no poses, and its RANSAC), SIFT's
-    contrast threshold."""
+    contrast threshold, and at most this many SIFT features per image (the strongest)."""
 
     neighbours: int = NEIGHBOURS
     max_image_size: int = MAX_IMAGE_SIZE
     num_threads: int = -1
     along_epipolar_lines: bool = True
     peak_threshold: float = PEAK_THRESHOLD
+    max_num_features: int = 8192
 
 
 def with_points(scene, views: Sequence[int] | None = None, cache: Path | None = None,
@@ -135,8 +137,14 @@ def _triangulate(scene, chosen: list[int], options: TriangulateOptions) -> tuple
             _match_with_colmap(work, db_path, [(names[a], names[b]) for a, b in pairs], options)
         (work / "model").mkdir()
         triangulation = pycolmap.IncrementalPipelineOptions(num_threads=ORDERED_THREADS, random_seed=RANDOM_SEED)
-        rec = pycolmap.triangulate_points(rec, db_path, folder, work / "model", clear_points=True,
-                                          options=triangulation)
+        posed = rec
+
+        def triangulate(send: Callable[[object], None]) -> None:  # in a child process: Ctrl-C stops it at once
+            pycolmap.triangulate_points(posed, db_path, folder, work / "model", clear_points=True,
+                                        options=triangulation).write(work / "model")
+
+        run_in_child(triangulate)
+        rec = pycolmap.Reconstruction(work / "model")
     # Views outside ``chosen`` are in no model: an id no image has leaves their observations empty.
     image_ids = [pycolmap.INVALID_IMAGE_ID] * len(scene)
     for view, name in zip(chosen, names):
@@ -151,8 +159,9 @@ def _match_with_colmap(work: Path, db_path: Path, pairs: list[tuple[str, str]], 
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = RANDOM_SEED
     pairing = pycolmap.ImportedPairingOptions(match_list_path=str(work / "pairs.txt"))
-    pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
-                               verification_options=verification, device=pycolmap.Device.cpu)
+    run_in_child(lambda send: pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing,
+                                                         verification_options=verification,
+                                                         device=pycolmap.Device.cpu))
 
 
 def _match_along_epipolar_lines(rec: "pycolmap.Reconstruction", db_path: Path, pairs: list[tuple[int, int]]) -> None:
@@ -185,8 +194,10 @@ def _extract(root: Path, names: list[str], db_path: Path, options: TriangulateOp
     extraction = pycolmap.FeatureExtractionOptions(max_image_size=options.max_image_size,
                                                    num_threads=options.num_threads)
     extraction.sift.peak_threshold = options.peak_threshold
-    pycolmap.extract_features(db_path, root, image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
-                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    extraction.sift.max_num_features = options.max_num_features
+    run_in_child(lambda send: pycolmap.extract_features(db_path, root, image_names=names,
+                                                        camera_mode=pycolmap.CameraMode.PER_IMAGE,
+                                                        extraction_options=extraction, device=pycolmap.Device.cpu))
 
 
 def _database_ids(db_path: Path, names: list[str]) -> dict[str, tuple[int, int]]:
