@@ -30,19 +30,20 @@ from insertnerf_cli.sfm.points_cache import cache_file, cache_key, load_points, 
 # Each view is matched with this many of its nearest views (view_rule of the layout): a point then has the
 # observers it needs (MIN_OBSERVERS) without the cost of every pair (a 100-view capture: 800 pairs, not 4,950).
 NEIGHBOURS = 8
-# SIFT on images no larger than this: the points guide samples to within a few per cent of depth, which
-# 1024 px keypoints locate far better than needed, at a quarter of full-resolution phone photos' cost.
-MAX_IMAGE_SIZE = 1024
+# SIFT on images no larger than this: the points guide samples to within a few per cent of depth, which 768 px
+# keypoints locate well enough; extraction and matching cost about half of 1024 px's. Smaller images lost points,
+# and with them 0.2-0.5 dB at 3 views (measured: docs/research-log.md, Poses and triangulation).
+MAX_IMAGE_SIZE = 768
 # COLMAP's RANSAC and triangulator draw at random: a fixed seed and a one-thread triangulator (its bundle
 # adjustment) make the points repeatable in most runs. Feature extraction and matching keep their threads (a
 # third less time than with one), and with them a run can still differ a little: a few points in a thousand, which
 # moves eval's scores by 0.01 dB or less (measured: docs/research-log.md, Poses and triangulation).
 RANDOM_SEED = 0
 ORDERED_THREADS = 1
-# SIFT's contrast threshold, below COLMAP's 1/150: the keypoints on faint texture (tissue, a plain wooden box, a
-# lab's far wall) that matching along the epipolar lines can place: few more points with COLMAP's matcher, about
-# twice as many with the epipolar one (measured: docs/research-log.md, Poses and triangulation).
-PEAK_THRESHOLD = 0.002
+# SIFT's contrast threshold, well below COLMAP's 1/150: the keypoints on faint texture (tissue, a plain wooden box,
+# a lab's far wall) that matching along the epipolar lines can place; at 768 px it also makes up the keypoints the
+# smaller images lose (measured: docs/research-log.md, Poses and triangulation).
+PEAK_THRESHOLD = 0.001
 
 
 @dataclass(frozen=True)
