@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 from pathlib import Path
@@ -28,6 +27,7 @@ from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model, save
 from insertnerf_cli.cli.commands.common import resolve_device  # noqa: E402
 from insertnerf_cli.errors import UserError  # noqa: E402
 from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune  # noqa: E402
+from insertnerf_cli.metrics import psnr  # noqa: E402
 from insertnerf_cli.finetune.data import finetune_scene  # noqa: E402
 from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS  # noqa: E402
 from insertnerf_cli.exporters.records import EvalConfig  # noqa: E402
@@ -62,7 +62,7 @@ def quick_score(scene_dir: Path, checkpoint: Path | None, pixels: int, device: t
         batch = make_batch(scene, cache, ViewDraw(0, target, tuple(usable[i] for i in near), chosen)).to(device)
         encoded = model.encode(batch.views)
         rgb = torch.cat([model.render(encoded, batch.rays[i:i + 256]).rgb for i in range(0, pixels, 256)])
-        psnrs.append(-10.0 * math.log10(float(((rgb - batch.target_rgb) ** 2).mean())))
+        psnrs.append(psnr(rgb, batch.target_rgb))
     return {"psnr": float(np.mean(psnrs)), "ssim": float("nan"), "views": len(psnrs)}
 
 

@@ -6,50 +6,25 @@
 Scene (beer's, made exact): a box whose opposite sides carry the same texture stands on a floor whose texture is
 the same after a half turn about the box's axis, inside a room whose walls are textured uniquely. The cameras
 walk a full circle around the box, named in walk order. Views half a turn apart see the same box and floor and
-different walls; matched as pairs, they pull the far half of the walk onto the near half. The script prints the
-true pose errors next to what `poses` reported (the torn links it found, the matcher it kept).
+different walls; matched as pairs, they pull the far half of the walk onto the near half (the scene is
+tests/textured_scenes.py's fold_mesh, which tests/test_poses.py maps too). The script prints the true pose errors
+next to what `poses` reported (the torn links it found, the matcher it kept).
 """
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
-import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from poses_accuracy import orbit_cameras, pose_errors, render, solid_texture  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the package, and the scenes the tests share (textured_scenes)
 
 from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses  # noqa: E402
-
-ROOM_HALF, ROOM_HEIGHT, BOX = 8.0, 6.0, (1.2, 0.8, 1.6)  # room half-width and height, box extents (world units)
-
-
-def fold_mesh() -> trimesh.Trimesh:
-    """The box on the floor (z = 0) inside the room (inward walls and ceiling, the floor its bottom face)."""
-    box = trimesh.creation.box(extents=BOX)
-    box.apply_translation([0.0, 0.0, BOX[2] / 2])
-    room = trimesh.creation.box(extents=[2 * ROOM_HALF, 2 * ROOM_HALF, ROOM_HEIGHT])
-    room.apply_translation([0.0, 0.0, ROOM_HEIGHT / 2])
-    room.invert()
-    return trimesh.util.concatenate([box, room])
-
-
-def half_turn_colouring(hits: np.ndarray, _: np.ndarray) -> np.ndarray:
-    """The box and the floor: textured at (x, y, z) as at (-x, -y, z); the walls and ceiling: uniquely."""
-    on_walls = (np.abs(hits[:, :2]).max(1) > ROOM_HALF - 1e-3) | (hits[:, 2] > ROOM_HEIGHT - 1e-3)
-    canonical = hits.copy()
-    flip = (hits[:, 0] < 0) | ((hits[:, 0] == 0) & (hits[:, 1] < 0))
-    canonical[flip, :2] *= -1.0
-    rgb = solid_texture(canonical, 0)
-    rgb[on_walls] = solid_texture(hits[on_walls] * 0.5 + 11.0, 5)
-    return rgb
+from textured_scenes import fold_mesh, half_turn_colouring, orbit_cameras, pose_errors, render  # noqa: E402
 
 
 def main() -> None:

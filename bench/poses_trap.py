@@ -20,10 +20,10 @@ import cv2
 import numpy as np
 import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the package, and the scenes the tests share (textured_scenes)
 
-from poses_accuracy import orbit_cameras, pose_errors, render, solid_texture  # noqa: E402
+from textured_scenes import orbit_cameras, pose_errors, render, solid_texture  # noqa: E402
 
 from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses  # noqa: E402
 

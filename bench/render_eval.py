@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import imageio.v3 as iio
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))

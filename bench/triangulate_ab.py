@@ -23,9 +23,11 @@ CHILD = """
 import sys, time
 from pathlib import Path
 from insertnerf_cli.scenes import load_scene, normalize_scene
-try:
+import insertnerf_cli
+# By file, not by a failed import: an editable install would find a missing module in the other tree.
+if (Path(insertnerf_cli.__file__).parent / "sfm").is_dir():
     from insertnerf_cli.sfm.triangulate import triangulate_points
-except ImportError:
+else:
     from insertnerf_cli.triangulate import triangulate_points
 scene, _ = normalize_scene(load_scene(Path(sys.argv[1])))
 start = time.perf_counter()
@@ -37,7 +39,8 @@ print(len(scene), scene.cameras.width, scene.cameras.height, len(points), time.p
 def time_once(tree: Path, scene: Path) -> tuple[str, int, float]:
     """(scene description, points, seconds) of one triangulation with ``tree``'s code."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    out = subprocess.run([sys.executable, "-c", CHILD, str(scene)], env=env, capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-c", CHILD, str(scene.resolve())], env=env, cwd=tree, capture_output=True,
+                         text=True,
                          check=True).stdout.split()
     views, width, height, points, seconds = out[-5:]
     return f"{views} views of {width}x{height}", int(points), float(seconds)

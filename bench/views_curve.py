@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model  # noqa: E402
 from insertnerf_cli.rendering.view_renderer import ViewRenderer  # noqa: E402
 from insertnerf_cli.cameras.rays import rays_from_pixels  # noqa: E402
+from insertnerf_cli.metrics import psnr_from_mse  # noqa: E402
 from insertnerf_cli.scenes import load_scene, normalize_scene  # noqa: E402
 from insertnerf_cli.scenes.views import held_out_views  # noqa: E402
 
@@ -42,7 +43,7 @@ def region_masks(depth: np.ndarray, truth: np.ndarray) -> dict[str, np.ndarray]:
 
 def region_psnr(error: np.ndarray, mask: np.ndarray) -> float:
     """PSNR (dB) of the squared error [H, W, 3] over the pixels of ``mask``."""
-    return float(-10.0 * np.log10(max(error[mask].mean(), 1e-10)))
+    return psnr_from_mse(float(error[mask].mean()))
 
 
 def curve(scene_dir: Path, counts: list[int], checkpoint: Path, exact: bool, max_views: int | None,

@@ -1,4 +1,5 @@
-"""Image quality metrics: PSNR and SSIM (Wang et al. 2004) on RGB images in [0, 1].
+"""Image quality metrics: PSNR (of images, or of a mean squared error) and SSIM (Wang et al. 2004) on RGB images
+in [0, 1]. The one place PSNR is computed: eval's scores, training's and fine-tuning's logs and the benches.
 
 SSIM follows the standard definition: an 11x11 Gaussian window with sigma 1.5, K1 = 0.01, K2 = 0.03, local
 statistics over the window (population variances), computed only where the window fits inside the image
@@ -18,6 +19,7 @@ SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_K1 = 0.01
 SSIM_K2 = 0.03
+MSE_FLOOR = 1e-10  # the smallest mean squared error psnr_from_mse reads by default (100 dB)
 
 
 def _as_tensor(image: Tensor | np.ndarray) -> Tensor:
@@ -30,7 +32,17 @@ def psnr(image: Tensor | np.ndarray, truth: Tensor | np.ndarray, max_value: floa
     if a.shape != b.shape:
         raise ValueError(f"image {list(a.shape)} and truth {list(b.shape)} differ in shape")
     mse = float(((a - b) ** 2).mean())
-    return math.inf if mse == 0.0 else 10.0 * math.log10(max_value ** 2 / mse)
+    return math.inf if mse == 0.0 else psnr_from_mse(mse, max_value, floor=0.0)
+
+
+def psnr_from_mse(mse: float | Tensor, max_value: float = 1.0, floor: float = MSE_FLOOR) -> float | Tensor:
+    """:func:`psnr` in dB from a mean squared error already taken (training's logs and losses): a float for a
+    number, a tensor for a tensor (no host sync, safe under autograd). The error is floored at ``floor`` so that
+    an exact fit logs a finite PSNR (100 dB for values in [0, 1]); :func:`psnr` passes 0 and says inf itself."""
+    if isinstance(mse, Tensor):
+        return 10.0 * torch.log10(max_value ** 2 / mse.clamp(min=floor))
+    mse = max(float(mse), floor)
+    return -math.inf if mse == math.inf else 10.0 * math.log10(max_value ** 2 / mse)
 
 
 def gaussian_window(size: int, sigma: float, dtype: torch.dtype = torch.float64) -> Tensor:

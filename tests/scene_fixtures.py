@@ -6,17 +6,17 @@ the public formats' own conventions (and pycolmap for COLMAP), never our readers
 """
 from __future__ import annotations
 
-import importlib.util
+import json
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Callable
 
 import cv2
 import numpy as np
 import torch
 
-from insertnerf_cli.cameras.camera import Cameras, intrinsics, opencv_to_llff
+from insertnerf_cli.cameras.camera import Cameras, check_shape, intrinsics
 from insertnerf_cli.scenes.writers import write_blender_transforms, write_nerfstudio_transforms
 
 HEIGHT, WIDTH, FOCAL = 24, 32, 30.0
@@ -84,6 +84,20 @@ def known_scene(n: int = 5, seed: int = 0) -> KnownScene:
     near, far = llff_bounds(cameras, points)
     return KnownScene(cameras, points, [pattern_image(i) for i in range(n)],
                       [f"view_{i:03d}.png" for i in range(n)], near, far)
+
+
+def edit_json(path: Path, change: Callable[[dict[str, Any]], Any]) -> None:
+    """Rewrite the JSON file ``path`` after ``change`` edited its data in place (json writes NaN and Infinity, as
+    some exporters do)."""
+    data = json.loads(path.read_text())
+    change(data)
+    path.write_text(json.dumps(data))
+
+
+def opencv_to_llff(c2w: torch.Tensor) -> torch.Tensor:
+    """Inverse of llff_to_opencv: OpenCV c2w [N, 4, 4] -> LLFF [N, 3, 4] ([down, right, back] + centre)."""
+    check_shape("c2w", c2w, (None, 4, 4))
+    return torch.stack([c2w[:, :3, 1], c2w[:, :3, 0], -c2w[:, :3, 2], c2w[:, :3, 3]], dim=-1)
 
 
 def write_images(folder: Path, known: KnownScene, names: list[str] | None = None) -> list[Path]:
@@ -188,13 +202,3 @@ def write_dtu_idr(root: Path, known: KnownScene, scale: float = 2.0) -> Path:
     np.savez(root / "cameras.npz", **arrays)
     write_images(root / "image", known, [f"{i:06d}.png" for i in range(len(cams))])
     return root
-
-
-def bench_module(script: str = "poses_accuracy"):
-    """A bench script as a module (bench/poses_accuracy.py: a textured room, ray cast with embree)."""
-    path = Path(__file__).resolve().parents[1] / "bench" / f"{script}.py"
-    spec = importlib.util.spec_from_file_location(f"{script}_bench", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while being created
-    spec.loader.exec_module(module)
-    return module

@@ -13,17 +13,11 @@ from click.testing import CliRunner
 from insertnerf_cli.cli.main import cli
 from insertnerf_cli.config import ModelConfig, config_to_json
 from insertnerf_cli.training.data import find_scenes
-from scene_fixtures import (known_scene, write_blender, write_colmap, write_dtu_idr, write_dtu_mvsnet, write_llff,
-                            write_nerfstudio)
+from scene_fixtures import (edit_json, known_scene, write_blender, write_colmap, write_dtu_idr, write_dtu_mvsnet,
+                            write_llff, write_nerfstudio)
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 NAN, INF = float("nan"), float("inf")
-
-
-def edit_json(path: Path, change: Callable[[dict[str, Any]], Any]) -> None:
-    data = json.loads(path.read_text())
-    change(data)
-    path.write_text(json.dumps(data))  # json writes NaN and Infinity, as some exporters do
 
 
 def angle_only(angle: Any) -> Callable[[dict[str, Any]], None]:
@@ -152,6 +146,7 @@ def one_line_refusal(tmp_path: Path, scene: Path) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("writer", [write_nerfstudio, write_blender], ids=["nerfstudio", "blender"])
 @pytest.mark.parametrize("case, change, expected", JSON_CASES, ids=[c[0] for c in JSON_CASES])
 def test_bad_transforms_values_are_one_line(tmp_path: Path, writer, case: str, change, expected: str) -> None:
@@ -163,6 +158,7 @@ def test_bad_transforms_values_are_one_line(tmp_path: Path, writer, case: str, c
     assert source.name in line or "view_000.png" in line  # names the file holding the value, or the view
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case, writer, change, expected", FILE_CASES, ids=[c[0] for c in FILE_CASES])
 def test_bad_camera_files_are_one_line(tmp_path: Path, case: str, writer, change, expected: str) -> None:
     root = writer(tmp_path / "scene", known_scene())
@@ -170,6 +166,7 @@ def test_bad_camera_files_are_one_line(tmp_path: Path, case: str, writer, change
     assert expected in one_line_refusal(tmp_path, root)
 
 
+@pytest.mark.slow
 def test_dataset_skips_bad_scenes_and_trains_on_the_rest(tmp_path: Path) -> None:
     data = tmp_path / "data"
     known = known_scene(n=8)

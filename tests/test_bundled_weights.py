@@ -1,4 +1,5 @@
 """The pretrained generator shipped in the package loads safely and renders."""
+import pytest
 import torch
 
 from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model
@@ -15,6 +16,7 @@ def test_bundled_checkpoint_is_small_and_loads_with_weights_only():
     assert "model" in payload and "train" not in payload  # weights and config only
 
 
+@pytest.mark.slow
 def test_bundled_model_renders_a_finite_image(one_thread):
     model, _ = load_model(bundled_checkpoint(), torch.device("cpu"))
     size = 24
@@ -25,6 +27,7 @@ def test_bundled_model_renders_a_finite_image(one_thread):
     assert ((out.depth >= NEAR - 1e-4) & (out.depth <= FAR + 1e-4)).all()
 
 
+@pytest.mark.slow
 def test_bundled_fast_model_is_the_default_and_takes_fewer_samples_than_full(one_thread):
     path = bundled_checkpoint("fast")
     assert path == bundled_checkpoint()

@@ -25,6 +25,7 @@ def one_line(err: pytest.ExceptionInfo) -> str:
     return message
 
 
+@pytest.mark.slow
 def test_round_trip_loads_with_weights_only_and_rebuilds_the_model(tmp_path):
     model = tiny_model()
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
@@ -143,6 +144,7 @@ def test_export_keeps_weights_and_config_and_drops_training_state(tmp_path):
         export_weights(source, tmp_path / "broken.pt", samples_fine=4)
 
 
+@pytest.mark.slow
 def test_average_of_two_generators_is_their_midpoint_and_refuses_other_configs(tmp_path):
     a, b = tiny_model(0), tiny_model(1)
     pa = save_checkpoint(tmp_path / "a.pt", a, TINY)

@@ -21,6 +21,7 @@ from insertnerf_cli.cli.main import cli
 from insertnerf_cli.cli.commands.common import user_errors
 from insertnerf_cli.config import ModelConfig, config_to_json
 from insertnerf_cli.errors import os_error_message
+from cli_fixtures import one_line_error
 from scene_fixtures import known_scene, write_blender, write_nerfstudio
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -33,20 +34,11 @@ def scene(tmp_path: Path) -> Path:
     return write_nerfstudio(tmp_path / "scene", known_scene())
 
 
-def error_line(result, exit_code: int = 1) -> str:
-    """The single 'Error:' line of a refused command (usage errors also print click's usage lines)."""
-    assert result.exit_code == exit_code and isinstance(result.exception, SystemExit), result.output
-    assert "Traceback" not in result.output
-    lines = [line for line in result.output.splitlines() if line.startswith("Error")]
-    assert len(lines) == 1, result.output
-    return lines[0]
-
-
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf", "0", "-5"])
 def test_render_fps_must_be_finite_and_positive(tmp_path: Path, scene: Path, value: str) -> None:
     out = tmp_path / "out"
     result = CliRunner().invoke(cli, ["render", str(scene), "--out", str(out), "--fps", value])
-    assert "--fps" in error_line(result, exit_code=2)  # refused while parsing: before any frame is rendered
+    assert "--fps" in one_line_error(result, exit_code=2)  # refused while parsing: before any frame is rendered
     assert not out.exists()
 
 
@@ -62,7 +54,7 @@ def test_render_fps_must_be_finite_and_positive(tmp_path: Path, scene: Path, val
 ])
 def test_bad_train_options_are_one_line(tmp_path: Path, scene: Path, flags: list[str], expected: str) -> None:
     result = CliRunner().invoke(cli, ["train", str(scene), "--out", str(tmp_path / "run"), "--device", "cpu", *flags])
-    assert expected in error_line(result)
+    assert expected in one_line_error(result)
     assert not (tmp_path / "run").exists()
 
 
@@ -80,7 +72,7 @@ def test_bad_model_config_is_one_line_naming_the_file(tmp_path: Path, scene: Pat
     path.write_text(json.dumps({**config_to_json(ModelConfig()), **change}))
     result = CliRunner().invoke(cli, ["train", str(scene), "--out", str(tmp_path / "run"), "--device", "cpu",
                                       "--model-config", str(path)])
-    line = error_line(result)
+    line = one_line_error(result)
     assert expected in line and str(path) in line
 
 
@@ -117,7 +109,7 @@ def write_a_lot(path: str) -> None:
 
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full (Linux) for a real ENOSPC")
 def test_disk_full_at_the_boundary_is_one_line() -> None:
-    line = error_line(CliRunner().invoke(write_a_lot, ["/dev/full"]))
+    line = one_line_error(CliRunner().invoke(write_a_lot, ["/dev/full"]))
     assert line.startswith("Error: disk full") and "free some space" in line
 
 
@@ -169,6 +161,7 @@ def unprivileged() -> list[str]:
     return ["setpriv", "--bounding-set=-all", "--inh-caps=-all"]
 
 
+@pytest.mark.slow
 def test_unreadable_inputs_are_one_line_and_skipped_in_datasets(tmp_path: Path) -> None:
     known = known_scene(n=8)
     no_train = write_blender(tmp_path / "no_train", known)
@@ -238,6 +231,7 @@ def wait_for_torch(pid: int, timeout_s: float = 60.0) -> bool:
     return False
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs /proc to see when torch starts loading")
 def test_ctrl_c_while_torch_loads_is_one_line(tmp_path: Path, scene: Path) -> None:
     env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")

@@ -77,6 +77,7 @@ def test_the_far_bound_moves_only_for_points_past_it_and_then_covers_them() -> N
     assert covering_far(2.0, stray) == pytest.approx(3.0 * GuideOptions().band_reach)
 
 
+@pytest.mark.slow
 def test_render_draws_its_samples_out_to_points_past_the_scenes_far_bound(tmp_path: Path) -> None:
     """An LLFF scene whose far bounds stop short of its COLMAP points (mold_gold_cape's, round 26): each frame's
     far bound in cameras.json reaches past the points it sees, and the depth maps' scale holds it."""
@@ -84,7 +85,7 @@ def test_render_draws_its_samples_out_to_points_past_the_scenes_far_bound(tmp_pa
     from dataclasses import replace
 
     from scene_fixtures import write_llff
-    from test_render_cli import make_checkpoint, run
+    from cli_fixtures import make_checkpoint, run
 
     known = known_scene(6)
     root = write_colmap(tmp_path / "s", known)
@@ -113,15 +114,15 @@ def test_points_seen_from_counts_only_the_allowed_views() -> None:
     xyz = torch.arange(12, dtype=torch.float64).reshape(4, 3)
     observed = (torch.tensor([0, 1, 2]), torch.tensor([0, 1]), torch.tensor([0, 3]))
     points = ScenePoints(xyz, observed)
-    assert points.seen_from([0, 1, 2]).tolist() == xyz[[0, 1]].tolist()  # point 2 and 3: one view each
-    assert points.seen_from([1, 2]).tolist() == xyz[[0]].tolist()  # without view 0, point 1 has one view left
-    assert len(points.seen_from([])) == 0
-    assert len(ScenePoints(xyz).seen_from([0])) == 4  # unknown observers: every point
-    assert points.subset_views([2, 0]).seen_from([0, 1]).tolist() == xyz[[0]].tolist()
+    assert points.seen_mask([0, 1, 2]).tolist() == [True, True, False, False]  # point 2 and 3: one view each
+    assert points.seen_mask([1, 2]).tolist() == [True, False, False, False]  # without view 0, point 1 has one left
+    assert not points.seen_mask([]).any()
+    assert ScenePoints(xyz).seen_mask([0]).tolist() == [True] * 4  # unknown observers: every point
+    assert points.subset_views([2, 0]).seen_mask([0, 1]).tolist() == [True, False, False, False]
     # A target's references: only points one of them observes (view 2 sees points 0 and 3; 3 has one observer).
-    assert points.seen_from([0, 1, 2], near=[2]).tolist() == xyz[[0]].tolist()
-    assert points.seen_from([0, 1, 2], near=[0]).tolist() == xyz[[0, 1]].tolist()
-    assert len(points.seen_from([0, 1, 2], near=[])) == 0
+    assert points.seen_mask([0, 1, 2], near=[2]).tolist() == [True, False, False, False]
+    assert points.seen_mask([0, 1, 2], near=[0]).tolist() == [True, True, False, False]
+    assert not points.seen_mask([0, 1, 2], near=[]).any()
 
 
 def test_a_frames_prior_uses_only_the_points_two_of_its_references_observe() -> None:
@@ -144,6 +145,7 @@ def test_a_frames_prior_uses_only_the_points_two_of_its_references_observe() -> 
     torch.testing.assert_close(depth, torch.full((H, W), 4.0, dtype=depth.dtype))
 
 
+@pytest.mark.slow
 def test_two_view_tracks_fill_only_where_better_placed_points_leave_the_prior_empty() -> None:
     left = plane_points(2.0, 0.05)
     left = left[left[:, 0] < 0]  # the left half of the frame, nearer
@@ -197,6 +199,7 @@ def test_a_colmap_scene_carries_its_points_into_normalised_units(tmp_path: Path)
     assert np.isfinite(depth.numpy()).mean() > 0.2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("exact", [True, False])
 def test_render_follows_the_prior_only_where_there_is_one(exact: bool) -> None:
     from model_fixtures import FAR, NEAR, RADIUS, tiny_model_and_views
@@ -216,8 +219,9 @@ def test_render_follows_the_prior_only_where_there_is_one(exact: bool) -> None:
     assert float((guided.depth - surface).abs().mean()) < float((plain.depth - surface).abs().mean())
 
 
+@pytest.mark.slow
 def test_eval_uses_the_points_unless_told_not_to(tmp_path: Path) -> None:
-    from test_render_cli import make_checkpoint, run
+    from cli_fixtures import make_checkpoint, run
 
     checkpoint = make_checkpoint(tmp_path / "tiny.pt")
     scene = write_colmap(tmp_path / "c", known_scene(9))
@@ -275,15 +279,15 @@ def test_poses_output_reads_its_points_with_their_observers(tmp_path: Path) -> N
                                 frame_extras=[{"colmap_im_id": i + 1} for i in order])
     scene = load_scene(root)
     assert scene.format == "nerfstudio" and scene.points.observed is not None
-    assert len(scene.points.seen_from([0, 1])) == len(known.points)  # every point is seen by every view
+    assert int(scene.points.seen_mask([0, 1]).sum()) == len(known.points)  # every point is seen by every view
     # A frame whose id the model lacks observes nothing.
     write_nerfstudio_transforms(root / "transforms.json", known.cameras.subset(order),
                                 [f"images/{known.names[i]}" for i in order], near=known.near[order],
                                 far=known.far[order], extra={"colmap_model": "colmap/0"},
                                 frame_extras=[{"colmap_im_id": 99 if i == 3 else i + 1} for i in order])
     points = load_scene(root).points
-    assert len(points.observed[0]) == 0 and len(points.seen_from([0, 1])) == 0
-    assert len(points.seen_from([1, 2])) == len(known.points)
+    assert len(points.observed[0]) == 0 and not points.seen_mask([0, 1]).any()
+    assert int(points.seen_mask([1, 2]).sum()) == len(known.points)
 
 
 def test_a_damaged_model_beside_an_llff_scene_is_ignored(tmp_path: Path) -> None:

@@ -7,7 +7,7 @@ import json
 import imageio.v3 as iio
 import numpy as np
 import pytest
-from test_render_cli import make_checkpoint, make_scene, run
+from cli_fixtures import make_scene, run
 
 from insertnerf_cli.exporters.outputs import (depth_scale_for, depth_to_float, depth_to_uint16, frame_paths, read_depth,
                                     write_frame)
@@ -54,11 +54,7 @@ def test_npy_depth_round_trips_with_nan_for_invalid(tmp_path):
     assert not paths.all_exist()
 
 
-@pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    return make_checkpoint(tmp_path_factory.mktemp("depth") / "tiny.pt")
-
-
+@pytest.mark.slow
 @pytest.mark.parametrize("unit", [1e-3, 1e4])
 def test_render_at_extreme_units_clips_nothing_and_npy_agrees_with_png(checkpoint, tmp_path, unit):
     scene = make_scene(tmp_path / "scene", {"train": 6}, scale=unit)  # bounds 0.5 to 4 times the unit

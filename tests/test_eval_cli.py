@@ -7,18 +7,13 @@ import re
 import imageio.v3 as iio
 import numpy as np
 import pytest
-from test_render_cli import make_checkpoint, make_scene, ring_cameras, run
+from cli_fixtures import make_scene, ring_cameras, run
 
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.scenes.views import evenly_spread, held_out_views, nearest_views
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")
-
-
-@pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    return make_checkpoint(tmp_path_factory.mktemp("eval") / "tiny.pt")
 
 
 def _eval(scene, ckpt, *extra):
@@ -35,6 +30,7 @@ def _check_references(report: dict, held: list[int], n: int, k: int) -> None:
         assert set(view["references"]) == set(nearest_views(c2w[view["index"]], c2w, k, "vector", exclude=held))
 
 
+@pytest.mark.slow
 def test_eval_scores_the_test_split_and_writes_json_and_side_by_sides(checkpoint, tmp_path):
     scene = make_scene(tmp_path / "scene", {"train": 6, "test": 2})
     result = _eval(scene, checkpoint, "--json", tmp_path / "scores.json", "--out", tmp_path / "sbs")
@@ -53,6 +49,7 @@ def test_eval_scores_the_test_split_and_writes_json_and_side_by_sides(checkpoint
     np.testing.assert_allclose(side[:, 16:32] / 255.0, truth, atol=1 / 255 + 1e-6)
 
 
+@pytest.mark.slow
 def test_without_a_split_every_8th_view_is_held_out(checkpoint, tmp_path):
     scene = make_scene(tmp_path / "scene", {"train": 10})
     # Asking for more views than exist: every non-held-out view serves, and still no held-out one.
@@ -63,6 +60,7 @@ def test_without_a_split_every_8th_view_is_held_out(checkpoint, tmp_path):
     assert all(sorted(v["references"]) == [1, 2, 3, 4, 5, 6, 7, 9] for v in report["views"])
 
 
+@pytest.mark.slow
 def test_eval_refuses_to_replace_outputs_without_overwrite(checkpoint, tmp_path):
     scene = make_scene(tmp_path / "scene", {"train": 6, "test": 1})
     report = tmp_path / "scores.json"
@@ -91,6 +89,7 @@ def test_held_out_views_rules(tmp_path):
     assert held_out_views(plain) == [0, 8, 16]
 
 
+@pytest.mark.slow
 def test_max_views_scores_a_subset_of_the_full_protocol(checkpoint, tmp_path):
     # The unscored held-out views must not become references: each score equals the full run's for that view.
     scene = make_scene(tmp_path / "scene", {"train": 8, "test": 3})
@@ -109,6 +108,7 @@ def test_max_views_scores_a_subset_of_the_full_protocol(checkpoint, tmp_path):
         assert view["psnr"] == pytest.approx(full[view["index"]]["psnr"], abs=1e-5)
 
 
+@pytest.mark.slow
 def test_a_list_of_view_counts_scores_each_on_the_same_held_out_views(checkpoint, tmp_path, monkeypatch):
     from insertnerf_cli.model import InsertNeRF
 
@@ -134,6 +134,7 @@ def test_a_list_of_view_counts_scores_each_on_the_same_held_out_views(checkpoint
     assert sum(encoded) <= 2 * 5
 
 
+@pytest.mark.slow
 def test_a_single_count_keeps_the_flat_json(checkpoint, tmp_path):
     scene = make_scene(tmp_path / "scene", {"train": 6, "test": 1})
     assert _eval(scene, checkpoint, "--views", "3", "--json", tmp_path / "s.json").exit_code == 0

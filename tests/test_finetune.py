@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_render_cli import make_checkpoint, make_scene, run
+from cli_fixtures import make_checkpoint, make_scene, run
 
 from insertnerf_cli.finetune import FinetuneConfig, Progress, finetune
 from insertnerf_cli.finetune import loop as finetune_loop
@@ -38,6 +38,7 @@ def _finetune(scene, base, out, *extra):
     return run("finetune", scene, "--out", out, "--checkpoint", base, *TINY_RUN, *extra)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("splits, held", [({"train": 10}, [0, 8]), ({"train": 6, "test": 2}, [6, 7])])
 def test_held_out_views_never_reach_the_draws(tmp_path, splits, held):
     # {"train": 10}: the scene's own train split holds every view, so eval's every-8th rule must be applied here.
@@ -55,6 +56,7 @@ def test_held_out_views_never_reach_the_draws(tmp_path, splits, held):
     assert targets == usable and sources == usable  # every usable view is drawn, no held-out one ever
 
 
+@pytest.mark.slow
 def test_the_real_loop_draws_only_usable_views(tmp_path, base, monkeypatch):
     scene_dir = make_scene(tmp_path / "scene", {"train": 10})
     seen: list[tuple[int, ...]] = []
@@ -77,7 +79,7 @@ def test_sources_colours_can_come_from_the_photos_at_twice_the_size(tmp_path, ba
     h, w = scene.cameras.height, scene.cameras.width
     frozen = FrozenFeatures(model, scene, ImageCache(1 << 20), colour_scale=2.0)
     picked = frozen.select((5, 1))
-    torch.testing.assert_close(picked.colours, scene.scene.load_views([5, 1], 2 * h, 2 * w)[0].permute(0, 3, 1, 2))
+    torch.testing.assert_close(picked.colours, scene.scene.load_sizes([5, 1], [(2 * h, 2 * w)])[0].permute(0, 3, 1, 2))
     assert (picked.height, picked.width) == (h, w)
     assert FrozenFeatures(model, scene, ImageCache(1 << 20), colour_scale=1.0).select((5, 1)).colours is None
 
@@ -102,6 +104,7 @@ def test_finer_colours_decode_each_photo_once_and_fill_the_cache(tmp_path, base,
         torch.testing.assert_close(image, decode_uint8(scene, i), rtol=0, atol=0)
 
 
+@pytest.mark.slow
 def test_two_step_finetune_writes_weights_that_render_and_eval_load(tmp_path, base):
     scene = make_scene(tmp_path / "scene", {"train": 6, "test": 2})
     out = tmp_path / "ft.pt"
@@ -121,6 +124,7 @@ def test_two_step_finetune_writes_weights_that_render_and_eval_load(tmp_path, ba
     assert scored.exit_code == 0 and "mean over 2 held-out views" in scored.output, scored.output
 
 
+@pytest.mark.slow
 def test_train_encoder_changes_the_encoder_too(tmp_path, base):
     scene = make_scene(tmp_path / "scene", {"train": 6})
     assert _finetune(scene, base, tmp_path / "ft.pt", "--steps", 2, "--train-encoder").exit_code == 0
@@ -129,6 +133,7 @@ def test_train_encoder_changes_the_encoder_too(tmp_path, base):
     assert any(not torch.equal(after[n], before[n]) for n in after if n.startswith("encoder."))
 
 
+@pytest.mark.slow
 def test_ctrl_c_finishes_the_step_and_saves(tmp_path, base):
     scene = make_scene(tmp_path / "scene", {"train": 6})
     steps_seen = []
@@ -148,6 +153,7 @@ def test_ctrl_c_finishes_the_step_and_saves(tmp_path, base):
     assert signal.getsignal(signal.SIGINT) is before  # the handler was put back
 
 
+@pytest.mark.slow
 def test_ctrl_c_on_the_command_exits_130_with_the_saved_file(tmp_path, base):
     scene = make_scene(tmp_path / "scene", {"train": 6})
     out = tmp_path / "ft.pt"
@@ -178,6 +184,7 @@ def _wait_for_a_finished_step(proc: subprocess.Popen, limit_s: float = 120.0) ->
             progress += chunk
 
 
+@pytest.mark.slow
 def test_out_is_refused_when_it_exists_or_lies_in_the_scene(tmp_path, base):
     scene = make_scene(tmp_path / "scene", {"train": 6})
     existing = tmp_path / "ft.pt"
@@ -195,6 +202,7 @@ def test_out_is_refused_when_it_exists_or_lies_in_the_scene(tmp_path, base):
     assert torch.load(existing, weights_only=True)["format"] == "insertnerf-checkpoint"
 
 
+@pytest.mark.slow
 def test_render_finetune_caches_the_weights_in_out(tmp_path, base):
     scene = make_scene(tmp_path / "scene", {"train": 6})
     out = tmp_path / "video"

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from test_render_cli import make_checkpoint
+from cli_fixtures import make_checkpoint
 
 from insertnerf_cli.finetune import FinetuneConfig, finetune
 from insertnerf_cli.finetune import loop as finetune_loop
@@ -36,6 +36,7 @@ def test_every_usable_view_gets_a_prior_at_its_points_depths(colmap_scene):
                                equal_nan=True)
 
 
+@pytest.mark.slow
 def test_a_step_passes_the_targets_prior_to_the_model_unless_told_not_to(colmap_scene, tmp_path, monkeypatch):
     base = make_checkpoint(tmp_path / "base.pt")
     guides = []
@@ -57,6 +58,7 @@ def test_a_step_passes_the_targets_prior_to_the_model_unless_told_not_to(colmap_
             assert all(g is None for g in guides)
 
 
+@pytest.mark.slow
 def test_points_a_caller_already_has_are_used_instead_of_the_scenes_own(colmap_scene, tmp_path, monkeypatch):
     """render --finetune triangulates once and hands its points on; the fine-tune must use them."""
     base = make_checkpoint(tmp_path / "base.pt")
@@ -77,6 +79,7 @@ def test_points_a_caller_already_has_are_used_instead_of_the_scenes_own(colmap_s
     torch.testing.assert_close(seen[1].xyz, own.xyz)
 
 
+@pytest.mark.slow
 def test_each_target_is_drawn_out_to_the_far_bound_render_would_give_it(tmp_path, monkeypatch):
     """Round 26: where a scene's far bounds stop short of its points, render raises a frame's far bound to cover
     them; the fine-tune trains each target's rays within the bound render would give that view."""

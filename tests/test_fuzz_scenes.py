@@ -2,13 +2,11 @@
 
 The exact damages a hostile user found (a .npy header that no longer parses, flipped bytes in a DTU cameras.npz,
 a non-UTF-8 name in COLMAP's images.bin, cameras.bin and points3D.bin cut short), then a short seeded fuzz of every
-format with bench/fuzz_scenes.py's own code (its long run is in docs/benchmarks.md).
+format with scene_fuzz.py (bench/fuzz_scenes.py runs it long; that run is in docs/benchmarks.md).
 """
 from __future__ import annotations
 
-import importlib.util
 import struct
-import sys
 import zlib
 from pathlib import Path
 
@@ -20,16 +18,7 @@ from insertnerf_cli.errors import SceneError
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.scenes.binfiles import load_npy
 from scene_fixtures import known_scene, write_colmap, write_dtu_idr, write_llff
-
-_BENCH = Path(__file__).resolve().parents[1] / "bench" / "fuzz_scenes.py"
-
-
-def _fuzz_module():
-    spec = importlib.util.spec_from_file_location("fuzz_scenes", _BENCH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("fuzz_scenes", module)  # its dataclasses look their module up by name
-    spec.loader.exec_module(module)
-    return module
+from scene_fuzz import fuzz
 
 
 def _refused(folder: Path, *fragments: str) -> str:
@@ -120,11 +109,11 @@ def test_colmap_bytes_after_the_records_are_refused(tmp_path: Path) -> None:
     _refused(root, "images.bin", "8 bytes follow")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["blender", "nerfstudio", "llff", "colmap-bin", "colmap-text", "dtu-idr",
                                   "dtu-mvsnet"])
 def test_seeded_fuzz_of_each_format_never_fails(name: str) -> None:
-    fuzz = _fuzz_module()
-    outcomes = fuzz.fuzz([name], variants=8, first_seed=1000)
+    outcomes = fuzz([name], variants=8, first_seed=1000)
     failures = [o for o in outcomes if o.failed]
     assert not failures, failures
     assert {o.verdict for o in outcomes} <= {"loaded", "refused"}

@@ -104,6 +104,7 @@ def synth_set(tmp_path_factory):
     return synth_root(tmp_path_factory, "synthdepth", resolution=32, layout="mixed", seed=5)
 
 
+@pytest.mark.slow
 def test_training_views_carry_synths_true_depth(synth_set):
     scenes = find_scenes(synth_set, 32, print, show_progress=False)
     data = load_training_set(scenes, 64, torch.device("cpu"), print, show_progress=False, with_depth=True)
@@ -119,6 +120,7 @@ def test_training_views_carry_synths_true_depth(synth_set):
     assert counts <= set(range(2, 7)) and len(counts) >= 3  # the count varies within views_min..num_views
 
 
+@pytest.mark.slow
 def test_training_with_depth_distortion_infinity_and_varying_views(synth_set, tmp_path):
     model = dataclasses.replace(TINY, num_views=4, infinity_sample=True, loss_depth_weight=0.1,
                                 loss_distortion_weight=0.01)
@@ -130,6 +132,7 @@ def test_training_with_depth_distortion_infinity_and_varying_views(synth_set, tm
     assert logged and all(line["depth"] > 0 and line["distortion"] > 0 for line in logged)
 
 
+@pytest.mark.slow
 def test_the_visibility_cue_starts_neutral_and_warm_starts_from_a_model_without_it(tmp_path):
     from insertnerf_cli.model.checkpoint import read_checkpoint, save_checkpoint
     from insertnerf_cli.training.warm_start import warm_start

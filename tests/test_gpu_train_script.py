@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 from test_train import tiny_config  # noqa: F401  (fixture)
 
@@ -21,6 +22,7 @@ def _script(*args) -> subprocess.CompletedProcess:
                           timeout=300)
 
 
+@pytest.mark.slow
 def test_start_poll_bring_back_and_resume_a_carried_run(tmp_path, tiny_config):  # noqa: F811
     data, run, out = tmp_path / "data", tmp_path / "machine" / "run", tmp_path / "OUT"
     train = ["--device", "cpu", "--model-config", tiny_config, "--rays", 16, "--resolution", 16, "--val-every", 2,

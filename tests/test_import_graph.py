@@ -6,6 +6,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 PACKAGE = Path(__file__).resolve().parents[1] / "insertnerf_cli"
 
 
@@ -72,12 +74,14 @@ def test_cycle_finder_finds_a_circle():
     assert cycles({"a": {"b"}, "b": set()}) == []
 
 
+@pytest.mark.slow
 def test_graph_sees_relative_and_deferred_imports():
     graph = import_graph()
     assert "insertnerf_cli.scenes.images" in graph["insertnerf_cli.scenes.base"]
     assert "insertnerf_cli.finetune" in graph["insertnerf_cli.pipelines.inputs"]
 
 
+@pytest.mark.slow
 def test_no_import_circles():
     assert cycles(import_graph()) == []
 
@@ -92,16 +96,19 @@ def _stage(module: str) -> int:
     return STAGES.index(parts[1]) if len(parts) > 1 else -1  # the package's own __init__ comes first
 
 
+@pytest.mark.slow
 def test_every_module_belongs_to_a_stage():
     assert {m.split(".")[1] for m in import_graph() if "." in m} <= set(STAGES)
 
 
+@pytest.mark.slow
 def test_no_stage_imports_a_later_one():
     later = sorted(f"{module} -> {dep}" for module, deps in import_graph().items() for dep in deps
                    if _stage(dep) > _stage(module))
     assert later == []
 
 
+@pytest.mark.slow
 def test_the_model_depends_on_no_render_path_stage():
     deps = {dep.split(".")[1] for module, ds in import_graph().items() if module.startswith("insertnerf_cli.model")
             for dep in ds if "." in dep}

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import cv2
 import pytest
-from test_render_cli import make_checkpoint
+from cli_fixtures import make_checkpoint
 
 import textured_scenes
 from insertnerf_cli.scenes.writers import write_nerfstudio_transforms

@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from insertnerf_cli.cli.main import cli
 from insertnerf_cli.files.lock import LOCK_NAME, OutputLocked, lock_file, lock_output, releases_output_locks
 from insertnerf_cli.files.outdir import BUNDLED_WEIGHTS_DIR, OutputRecord, foreign_entries, holds_files
-from test_render_cli import make_checkpoint, make_scene
+from cli_fixtures import make_checkpoint, make_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 MAIN = "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli.main import main; main()"
@@ -100,6 +100,7 @@ def _render_args(scene: Path, out: Path, ckpt: Path, *extra: str) -> list[str]:
             "--device", "cpu", *extra]
 
 
+@pytest.mark.slow
 def test_two_renders_race_on_one_folder_the_second_is_refused_and_the_first_finishes_whole(tmp_path: Path) -> None:
     scene, ckpt = make_scene(tmp_path / "scene", {"train": 6}), make_checkpoint(tmp_path / "tiny.pt")
     out = tmp_path / "out"

@@ -34,6 +34,7 @@ def _writer(db_path: Path, rows: int, fail: bool = False):
     return match
 
 
+@pytest.mark.slow
 def test_progress_counts_rows_while_the_matcher_runs(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setattr("insertnerf_cli.poses.matching.POLL_S", 0.1)
     db_path = tmp_path / "database.db"

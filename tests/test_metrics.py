@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from insertnerf_cli.metrics import SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_WINDOW, gaussian_window, psnr, ssim
+from insertnerf_cli.metrics import (SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_WINDOW, gaussian_window, psnr, psnr_from_mse,
+                                    ssim)
 
 
 def _image(seed: int, size: int = 24) -> np.ndarray:
@@ -24,6 +25,16 @@ def test_psnr_of_known_noise():
     assert psnr(truth + 0.1 * signs, truth) == pytest.approx(20.0, abs=1e-9)
     # PSNR is relative to the peak: the same images on a 0-255 scale give the same figure.
     assert psnr(255 * (truth + 0.1 * signs), 255 * truth, max_value=255.0) == pytest.approx(20.0, abs=1e-9)
+
+
+def test_psnr_from_a_mean_squared_error_is_the_same_figure_floored_for_logs():
+    a, b = _image(1), _image(2)
+    mse = float(((torch.from_numpy(a) - torch.from_numpy(b)) ** 2).mean())  # as psnr takes it
+    assert psnr_from_mse(mse) == psnr(a, b)  # the same arithmetic as eval's scores
+    assert psnr_from_mse(0.01) == pytest.approx(20.0, abs=1e-9)
+    assert psnr_from_mse(0.0) == pytest.approx(100.0)  # an exact fit logs a number, not inf
+    value = psnr_from_mse(torch.tensor([0.01, 0.0]))  # a tensor stays a tensor (training's loss terms)
+    assert torch.is_tensor(value) and value.tolist() == pytest.approx([20.0, 100.0], abs=1e-4)
 
 
 def test_psnr_accepts_tensors_and_rejects_shape_mismatch():

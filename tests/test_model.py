@@ -136,6 +136,7 @@ def test_module_shapes_and_gradients():
         assert t.grad is not None and torch.isfinite(t.grad).all() and t.grad.abs().sum() > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("conditioning", ["hyper", "concat"])
 def test_full_model_forward_losses_and_finite_gradients_everywhere(conditioning):
     torch.manual_seed(0)

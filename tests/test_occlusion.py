@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 
 from insertnerf_cli.cameras.camera import Cameras
@@ -107,8 +108,9 @@ def test_near_angles_follow_the_lens():
     assert torch.allclose(near_angle(long_lens), torch.tensor([OPTIONS.near_parallax / 2]))
 
 
+@pytest.mark.slow
 def test_render_hands_the_generator_each_references_map_in_their_order(tmp_path, monkeypatch):
-    from test_render_cli import make_checkpoint
+    from cli_fixtures import make_checkpoint
 
     import insertnerf_cli.rendering.view_renderer as render_module
     from insertnerf_cli.scenes import load_scene, normalize_scene

@@ -10,8 +10,9 @@ import torch
 from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.exporters.eval_outputs import side_by_side
-from insertnerf_cli.exporters.outputs import (depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths, to_uint8, video_codec,
-                                    write_cameras_json, write_frame, write_png, write_video)
+from insertnerf_cli.exporters.outputs import (depth_to_turbo, depth_to_uint16, ffmpeg_exe, frame_paths, to_uint8,
+                                             write_cameras_json, write_frame, write_png, write_video)
+from cli_fixtures import video_codec
 
 
 def test_depth_png_round_trips_as_uint16_steps_of_the_scale(tmp_path):
@@ -42,6 +43,7 @@ def test_turbo_preview_near_is_warm_far_is_cool_invalid_is_black():
     np.testing.assert_array_equal(vis[0, 2], [0, 0, 0])
 
 
+@pytest.mark.slow
 def test_frame_files_and_h264_video(tmp_path):
     ffmpeg_exe()
     files = []

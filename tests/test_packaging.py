@@ -56,6 +56,7 @@ def undeclared(modules: set[str], allowed: set[str], providers: dict[str, list[s
     return [m for m in third_party if not {canonical(d) for d in providers.get(m, [])} & allowed]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("folder", sorted(FOLDERS))
 def test_every_imported_module_is_declared(folder: str) -> None:
     providers = importlib.metadata.packages_distributions()
@@ -67,6 +68,7 @@ def test_every_imported_module_is_declared(folder: str) -> None:
     assert not missing, f"imported but not declared in pyproject.toml for {folder}/: {missing}"
 
 
+@pytest.mark.slow
 def test_every_runtime_dependency_is_imported() -> None:
     """No stale dependency: each declared runtime distribution provides a module the package imports."""
     providers = importlib.metadata.packages_distributions()

@@ -8,18 +8,13 @@ from pathlib import Path
 from urllib.parse import unquote
 
 import pytest
-from test_render_cli import make_checkpoint, make_scene, run
+from cli_fixtures import make_scene, run
 
 from insertnerf_cli.files.outdir import OutputRecord
 from insertnerf_cli.exporters.report.svg import ViewAxes, line_chart
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 _REFERENCE = re.compile(r'(?:src|href|poster)="([^"]*)"')
-
-
-@pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    return make_checkpoint(tmp_path_factory.mktemp("pages") / "tiny.pt")
 
 
 def _references(page: Path) -> list[str]:
@@ -35,6 +30,7 @@ def _references(page: Path) -> list[str]:
     return refs
 
 
+@pytest.mark.slow
 def test_render_page_lists_every_frame_and_links_inside_the_folder(checkpoint, tmp_path):
     scene = make_scene(tmp_path / "my <scene> & co", {"train": 6})
     out = tmp_path / "views"
@@ -58,6 +54,7 @@ def test_render_page_lists_every_frame_and_links_inside_the_folder(checkpoint, t
     assert "frames/00001.png" in _references(page) and "frames/00002.png" not in _references(page)
 
 
+@pytest.mark.slow
 def test_eval_report_has_thumbnails_means_and_a_views_chart(checkpoint, tmp_path):
     scene = make_scene(tmp_path / "scene", {"train": 6, "test": 2})
     out = tmp_path / "report"

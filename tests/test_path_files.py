@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_render_cli import make_checkpoint, make_scene, ring_cameras, run
+from cli_fixtures import make_checkpoint, make_scene, ring_cameras, run
 
 from insertnerf_cli.cameras.camera import opengl_to_opencv
 
@@ -33,17 +33,18 @@ def _camera_path(c2w_gl: np.ndarray, fov: float = 50.0, **top) -> dict:
             **top}
 
 
-def _render(scene: Path, ckpt: Path, out: Path, path: Path, *extra):
+def render_command(scene: Path, ckpt: Path, out: Path, path: Path, *extra):
     return run("render", scene, "--out", out, "--checkpoint", ckpt, "--device", "cpu", "--views", 2,
                "--path", path, *extra)
 
 
+@pytest.mark.slow
 def test_a_nerfstudio_camera_path_renders_its_cameras_exactly(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
     c2w = _keyframes()
     path = tmp_path / "camera_path.json"
     path.write_text(json.dumps(_camera_path(c2w)))
-    result = _render(scene, ckpt, tmp_path / "views", path)
+    result = render_command(scene, ckpt, tmp_path / "views", path)
     assert result.exit_code == 0, result.output
     cams = json.loads((tmp_path / "views" / "cameras.json").read_text())
     written = np.array([f["transform_matrix"] for f in cams["frames"]])
@@ -54,13 +55,14 @@ def test_a_nerfstudio_camera_path_renders_its_cameras_exactly(scene_and_checkpoi
     assert len(list((tmp_path / "views" / "frames").glob("*.png"))) == 3
 
 
+@pytest.mark.slow
 def test_a_transforms_file_of_target_cameras_renders_too(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
     c2w = _keyframes()[:2]
     path = tmp_path / "targets.json"
     path.write_text(json.dumps({"fl_x": 14.0, "w": 16, "h": 12,
                                 "frames": [{"transform_matrix": m.tolist()} for m in c2w]}))
-    result = _render(scene, ckpt, tmp_path / "views", path)
+    result = render_command(scene, ckpt, tmp_path / "views", path)
     assert result.exit_code == 0, result.output
     written = np.array([f["transform_matrix"] for f in
                         json.loads((tmp_path / "views" / "cameras.json").read_text())["frames"]])
@@ -85,7 +87,7 @@ def test_a_bad_path_file_is_one_line_and_exit_1(scene_and_checkpoint, tmp_path, 
     scene, ckpt = scene_and_checkpoint
     path = tmp_path / "camera_path.json"
     path.write_text(content)
-    result = _render(scene, ckpt, tmp_path / "views", path)
+    result = render_command(scene, ckpt, tmp_path / "views", path)
     assert result.exit_code == 1, result.output
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and words in lines[0] and "Traceback" not in result.output
@@ -94,9 +96,9 @@ def test_a_bad_path_file_is_one_line_and_exit_1(scene_and_checkpoint, tmp_path, 
 
 def test_path_is_a_kind_or_an_existing_file(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
-    result = _render(scene, ckpt, tmp_path / "views", tmp_path / "nowhere.json")
+    result = render_command(scene, ckpt, tmp_path / "views", tmp_path / "nowhere.json")
     assert result.exit_code == 1 and "no such file" in result.output
     path = tmp_path / "camera_path.json"
     path.write_text(json.dumps(_camera_path(_keyframes())))
-    result = _render(scene, ckpt, tmp_path / "views", path, "--frames", 5)
+    result = render_command(scene, ckpt, tmp_path / "views", path, "--frames", 5)
     assert result.exit_code == 1 and "--frames does not apply" in result.output

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from test_render_cli import make_checkpoint, make_scene, run
+from cli_fixtures import make_checkpoint, make_scene, run
 
 from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.exporters.pointcloud import frame_points, subsample
@@ -39,6 +39,7 @@ def test_subsample_keeps_at_most_the_limit_the_same_way_every_time():
     assert len(a) == 10 and np.array_equal(a, b) and subsample(points, colours, 500)[0] is points
 
 
+@pytest.mark.slow
 def test_render_pointcloud_loads_with_trimesh_in_the_scene_units(tmp_path):
     unit = 1e4
     scene = make_scene(tmp_path / "scene", {"train": 6}, scale=unit)  # cameras on a ring of radius 2 units

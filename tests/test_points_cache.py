@@ -4,15 +4,13 @@ from __future__ import annotations
 import os
 from dataclasses import replace
 
-import cv2
 import pytest
 import torch
-from test_render_cli import make_checkpoint, run
+from cli_fixtures import make_checkpoint, run
 
 import textured_scenes
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.scenes.points import ScenePoints
-from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
 from insertnerf_cli.sfm.points_cache import cache_file, cache_key, load_points, save_points
 from insertnerf_cli.sfm.triangulate import TriangulateOptions
 
@@ -23,13 +21,8 @@ VIEWS, SIZE = 8, 120
 @pytest.fixture(scope="module")
 def posed(tmp_path_factory):
     """(a nerfstudio scene of the textured room at its true poses with no points, a tiny checkpoint)."""
-    truth = textured_scenes.render_scene(views=VIEWS, size=SIZE, arc_deg=70.0)
     root = tmp_path_factory.mktemp("points_cache")
-    (root / "scene" / "images").mkdir(parents=True)
-    names = [f"images/view_{i:02d}.png" for i in range(VIEWS)]
-    for name, image in zip(names, truth.images):
-        cv2.imwrite(str(root / "scene" / name), image[..., ::-1])
-    write_nerfstudio_transforms(root / "scene" / "transforms.json", truth.cameras, names, near=0.5, far=8.0)
+    textured_scenes.write_posed_room(root / "scene", VIEWS, SIZE)
     return root / "scene", make_checkpoint(root / "tiny.pt")
 
 
@@ -46,6 +39,7 @@ def test_points_round_trip_with_their_observations_and_a_bad_file_is_ignored(tmp
     assert load_points(tmp_path / "bad.npz", 3) is None
 
 
+@pytest.mark.slow
 def test_the_key_follows_the_photos_the_poses_and_the_views(posed):
     scene = load_scene(posed[0])
     options = TriangulateOptions()
@@ -62,6 +56,7 @@ def test_the_key_follows_the_photos_the_poses_and_the_views(posed):
     os.utime(photo, ns=(stat.st_atime_ns, stat.st_mtime_ns))
 
 
+@pytest.mark.slow
 def test_a_second_render_at_another_resolution_reuses_the_points(posed, tmp_path):
     scene, ckpt = posed
     out = tmp_path / "views"
@@ -73,11 +68,12 @@ def test_a_second_render_at_another_resolution_reuses_the_points(posed, tmp_path
     assert len(stored) == 1 and len(load_points(stored[0], VIEWS)) > 50
     second = run(*args, "--resolution", 24, "--overwrite")
     assert second.exit_code == 0, second.output
-    assert "triangulating" not in second.output and "kept from an earlier run" in second.output
+    assert "triangulating" not in second.output and "triangulated by an earlier run" in second.output
     assert sorted((out / "points").glob("*.npz")) == stored
     assert stored[0] == cache_file(out / "points", stored[0].stem)
 
 
+@pytest.mark.slow
 def test_eval_with_out_keeps_the_points_of_its_references(posed, tmp_path):
     scene, ckpt = posed
     args = ["eval", scene, "--checkpoint", ckpt, "--device", "cpu", "--views", 3, "--resolution", 24,
@@ -86,4 +82,4 @@ def test_eval_with_out_keeps_the_points_of_its_references(posed, tmp_path):
     assert first.exit_code == 0, first.output
     assert len(list((tmp_path / "report" / "points").glob("*.npz"))) == 1
     second = run(*args, "--overwrite")
-    assert second.exit_code == 0 and "kept from an earlier run" in second.output
+    assert second.exit_code == 0 and "triangulated by an earlier run" in second.output

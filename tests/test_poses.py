@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,7 +24,8 @@ from insertnerf_cli.poses.check import (CheckLimits, PairMatches, check_relative
 from insertnerf_cli.poses.folder import read_inputs
 from insertnerf_cli.poses.preview import frustum_mesh, write_camera_frustums, write_point_cloud
 from insertnerf_cli.scenes import load_scene
-from scene_fixtures import bench_module
+import textured_scenes
+from cli_fixtures import one_line_error
 
 
 def _noise_images(folder: Path, count: int, size: tuple[int, int] = (96, 128), seed: int = 0) -> list[Path]:
@@ -43,25 +43,16 @@ def _run(*args: str):
     return CliRunner().invoke(cli, ["poses", *args])
 
 
-def _assert_one_line_error(result, *fragments: str) -> None:
-    assert result.exit_code != 0
-    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
-    assert "Traceback" not in result.output
-    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
-    assert len(errors) == 1, result.output
-    for fragment in fragments:
-        assert fragment in errors[0], errors[0]
-
-
 def _only_inputs_left(parent: Path, *kept: str) -> None:
     """Nothing but ``kept`` in ``parent``: no output folder, no temporary folder left behind."""
     assert sorted(p.name for p in parent.iterdir()) == sorted(kept)
 
 
+@pytest.mark.slow
 def test_three_noise_images_fail_cleanly(tmp_path: Path) -> None:
     _noise_images(tmp_path / "photos", 3)
     result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
-    _assert_one_line_error(result, "could not build any model")
+    one_line_error(result, "could not build any model")
     _only_inputs_left(tmp_path, "photos")
 
 
@@ -69,7 +60,7 @@ def test_fewer_than_three_images(tmp_path: Path) -> None:
     _noise_images(tmp_path / "photos", 2)
     (tmp_path / "photos" / "notes.txt").write_text("not an image")
     result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
-    _assert_one_line_error(result, "found 2 image(s)", "at least 3")
+    one_line_error(result, "found 2 image(s)", "at least 3")
     _only_inputs_left(tmp_path, "photos")
 
 
@@ -78,7 +69,7 @@ def test_unreadable_files_are_named(tmp_path: Path) -> None:
     (tmp_path / "photos" / "broken.jpg").write_bytes(b"\xff\xd8\xff not really a jpeg")
     (tmp_path / "photos" / "empty.png").write_bytes(b"")
     result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
-    _assert_one_line_error(result, "cannot read 2 file(s)", "broken.jpg", "empty.png")
+    one_line_error(result, "cannot read 2 file(s)", "broken.jpg", "empty.png")
     _only_inputs_left(tmp_path, "photos")
 
 
@@ -86,7 +77,7 @@ def test_mixed_image_sizes_are_refused(tmp_path: Path) -> None:
     _noise_images(tmp_path / "photos", 3)
     cv2.imwrite(str(tmp_path / "photos" / "other.png"), np.zeros((50, 60, 3), np.uint8))
     result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
-    _assert_one_line_error(result, "2 different sizes", "60x50")
+    one_line_error(result, "2 different sizes", "60x50")
 
 
 def test_existing_output_is_kept_without_overwrite(tmp_path: Path) -> None:
@@ -94,16 +85,17 @@ def test_existing_output_is_kept_without_overwrite(tmp_path: Path) -> None:
     (tmp_path / "scene").mkdir()
     (tmp_path / "scene" / "precious.txt").write_text("keep me")
     result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"))
-    _assert_one_line_error(result, "already exists", "--overwrite")
+    one_line_error(result, "already exists", "--overwrite")
     assert (tmp_path / "scene" / "precious.txt").read_text() == "keep me"
 
 
+@pytest.mark.slow
 def test_failed_overwrite_keeps_previous_output(tmp_path: Path) -> None:
     _noise_images(tmp_path / "photos", 3)
     (tmp_path / "scene").mkdir()
     (tmp_path / "scene" / "transforms.json").write_text("{}")
     result = _run(str(tmp_path / "photos"), "--out", str(tmp_path / "scene"), "--overwrite")
-    _assert_one_line_error(result, "could not build any model")
+    one_line_error(result, "could not build any model")
     assert (tmp_path / "scene" / "transforms.json").read_text() == "{}"
     _only_inputs_left(tmp_path, "photos", "scene")
 
@@ -111,7 +103,7 @@ def test_failed_overwrite_keeps_previous_output(tmp_path: Path) -> None:
 def test_output_that_contains_the_inputs_is_refused(tmp_path: Path) -> None:
     _noise_images(tmp_path / "scene" / "images", 3)
     result = _run(str(tmp_path / "scene" / "images"), "--out", str(tmp_path / "scene"), "--overwrite")
-    _assert_one_line_error(result, "contains the input images")
+    one_line_error(result, "contains the input images")
     assert len(list((tmp_path / "scene" / "images").iterdir())) == 3
 
 
@@ -261,9 +253,9 @@ def _relative_rotations(c2w: torch.Tensor) -> np.ndarray:
     return np.einsum("nji,njk->nik", rot[1:], rot[:-1])
 
 
+@pytest.mark.slow
 def test_real_sfm_on_rendered_views(tmp_path: Path) -> None:
-    bench = bench_module()
-    truth = bench.render_scene(views=8, size=200, arc_deg=70.0)
+    truth = textured_scenes.render_scene(views=8, size=200, arc_deg=70.0)
     (tmp_path / "photos").mkdir()
     # One photo WebP (COLMAP cannot decode it) and one named in Latin-1 (pycolmap takes UTF-8 text only): both are
     # handed to COLMAP as converted copies in the temporary output, never written inside photos/.
@@ -301,11 +293,12 @@ def test_real_sfm_on_rendered_views(tmp_path: Path) -> None:
     _only_inputs_left(tmp_path, "photos", "scene")
 
 
+@pytest.mark.slow
 def test_auto_matches_every_pair_when_sequential_matching_fails(tmp_path: Path) -> None:
     """Photos that are not in video order: with more than exhaustive_limit of them, "auto" matches neighbours in
     name order first; when that places too few, it matches every pair and maps again (asked for "sequential"
     explicitly, the same photos fail)."""
-    truth = bench_module().render_scene(views=12, size=200, arc_deg=150.0)
+    truth = textured_scenes.render_scene(views=12, size=200, arc_deg=150.0)
     order = [0, 6, 1, 7, 2, 8, 3, 9, 4, 10, 5, 11]  # consecutive names 75 degrees apart
     (tmp_path / "photos").mkdir()
     for name_index, view in enumerate(order):
@@ -321,14 +314,14 @@ def test_auto_matches_every_pair_when_sequential_matching_fails(tmp_path: Path) 
                        report=lambda line: None)
 
 
+@pytest.mark.slow
 def test_auto_maps_a_folded_walk_again_as_a_chain(tmp_path: Path) -> None:
     """Beer's failure, made exact (bench/poses_fold.py): a walk around a box whose opposite sides and floor look
     the same after a half turn. Every pair matched, SfM lays the far half of the walk onto the near half (measured:
     rotations 137 deg off); the torn links between neighbours in name order give it away, and a chain of
     near neighbours alone maps the walk right."""
-    bench = bench_module("poses_fold")
-    cameras = bench.orbit_cameras(20, (192, 256), 3.5, fov_deg=60.0, height=lambda a: 1.6)
-    images = bench.render(bench.fold_mesh(), cameras, bench.half_turn_colouring)
+    cameras = textured_scenes.orbit_cameras(20, (192, 256), 3.5, fov_deg=60.0, height=lambda a: 1.6)
+    images = textured_scenes.render(textured_scenes.fold_mesh(), cameras, textured_scenes.half_turn_colouring)
     (tmp_path / "photos").mkdir()
     for i, img in enumerate(images):
         cv2.imwrite(str(tmp_path / "photos" / f"walk_{i:03d}.png"), img[..., ::-1])
@@ -340,17 +333,18 @@ def test_auto_maps_a_folded_walk_again_as_a_chain(tmp_path: Path) -> None:
     assert any("follow each other in name order and match well" in line for line in lines), lines
     assert any("the chain model tears" in line for line in lines), lines
     assert result.matcher == "chain" and len(result.registered) == 20 and result.check.passed
-    rot_err, _ = bench.pose_errors(cameras, result.cameras)
+    rot_err, _ = textured_scenes.pose_errors(cameras, result.cameras)
     assert float(np.median(rot_err)) < 1.0, rot_err
     assert sorted(p.name for p in (tmp_path / "scene" / "colmap").iterdir()) == ["database.db", "sparse"]
     _only_inputs_left(tmp_path, "photos", "scene")
 
 
+@pytest.mark.slow
 def test_mapping_runs_again_from_a_narrower_first_pair(tmp_path: Path) -> None:
     """LLFF's flower (photos 0.6-3 degrees apart) gave no model from COLMAP's first pair of 16 degrees and all 34
     photos from one of 4. Here an impossible first pair (400 degrees: COLMAP relaxes the angle itself a few times,
     and 80 still mapped) makes the first mapping fail the same way; the second one, from 4, places every view."""
-    truth = bench_module().render_scene(views=8, size=160, arc_deg=70.0)
+    truth = textured_scenes.render_scene(views=8, size=160, arc_deg=70.0)
     (tmp_path / "photos").mkdir()
     for i, img in enumerate(truth.images):
         cv2.imwrite(str(tmp_path / "photos" / f"v{i:02d}.png"), img[..., ::-1])

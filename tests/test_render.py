@@ -117,6 +117,7 @@ def test_render_image_is_chunk_invariant_and_matches_the_forward():
     assert not big.rgb.requires_grad
 
 
+@pytest.mark.slow
 def test_render_image_on_worker_threads_matches_one_thread_and_restores_the_thread_count():
     model, encoded, camera = tiny_model_and_views()
     before = torch.get_num_threads()

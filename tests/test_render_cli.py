@@ -2,73 +2,19 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import imageio.v3 as iio
 import imageio_ffmpeg
 import numpy as np
 import pytest
-import torch
-from click.testing import CliRunner
 
-from insertnerf_cli.cameras.camera import Cameras, intrinsics
-from insertnerf_cli.model.checkpoint import bundled_checkpoint, checkpoint_sha256, save_checkpoint
-from insertnerf_cli.cli.main import cli
-from insertnerf_cli.config import ModelConfig
+from insertnerf_cli.model.checkpoint import bundled_checkpoint, checkpoint_sha256
 from insertnerf_cli.model import InsertNeRF
-from insertnerf_cli.exporters.outputs import STATE_FILE, depth_scale_for, video_codec
-from insertnerf_cli.rendering.camera_paths import look_at
-from insertnerf_cli.scenes import write_blender_transforms
+from insertnerf_cli.exporters.outputs import STATE_FILE, depth_scale_for
+from cli_fixtures import HEIGHT, WIDTH, make_checkpoint, make_scene, render_command, run, video_codec
 
-HEIGHT, WIDTH = 24, 32
 pytestmark = pytest.mark.usefixtures("one_thread")
-# Tiny network: CLI mechanics only, random weights are fine.
-TINY = dict(encoder_widths=(4, 4, 4, 4), feature_dims=(4, 4, 4), nerf_width=8, appearance_width=8, film_hidden=8,
-            samples_coarse=8, samples_fine=8, aggregate_hidden=4)
-
-
-def ring_cameras(n: int, radius: float = 2.0) -> Cameras:
-    """n cameras on a ring of ``radius`` units around the origin (world z up), looking at it."""
-    angles = torch.arange(n, dtype=torch.float64) * 2 * math.pi / n
-    eyes = torch.stack([radius * torch.cos(angles), radius * torch.sin(angles),
-                        torch.full_like(angles, 0.5 * radius)], dim=-1)
-    c2w = look_at(eyes, torch.zeros(3, dtype=torch.float64), torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
-    return Cameras(intrinsics(30.0, 30.0, WIDTH / 2, HEIGHT / 2).expand(n, 3, 3).clone(), c2w, HEIGHT, WIDTH)
-
-
-def grid_cameras(n: int) -> Cameras:
-    """n cameras on a small grid in the plane z = 0, all facing +z: a forward-facing capture."""
-    c2w = torch.eye(4, dtype=torch.float64).repeat(n, 1, 1)
-    c2w[:, 0, 3] = 0.1 * (torch.arange(n, dtype=torch.float64) % 3)
-    c2w[:, 1, 3] = 0.1 * (torch.arange(n, dtype=torch.float64) // 3)
-    return Cameras(intrinsics(30.0, 30.0, WIDTH / 2, HEIGHT / 2).expand(n, 3, 3).clone(), c2w, HEIGHT, WIDTH)
-
-
-def make_scene(root: Path, splits: dict[str, int], layout: str = "object", scale: float = 1.0) -> Path:
-    """A Blender-format scene with ``splits`` = {name: views}, cameras on a ring ("object") or a grid
-    ("forward"), every length multiplied by ``scale``; images are smooth per-view colour ramps."""
-    n = sum(splits.values())
-    cams = ring_cameras(n) if layout == "object" else grid_cameras(n)
-    cams = cams.transform(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64), scale)
-    start = 0
-    for split, count in splits.items():
-        names = [f"{split}/r_{i}.png" for i in range(count)]
-        for i, name in enumerate(names):
-            ramp = np.linspace(0, 1, WIDTH)[None, :, None] * np.array([1.0, 0.5, (start + i) / 16])
-            (root / split).mkdir(parents=True, exist_ok=True)
-            iio.imwrite(root / name, (255 * np.broadcast_to(ramp, (HEIGHT, WIDTH, 3))).astype(np.uint8))
-        write_blender_transforms(root / f"transforms_{split}.json", cams.subset(range(start, start + count)), names,
-                                 near=0.5 * scale, far=4.0 * scale,
-                                 extra={"layout": layout})
-        start += count
-    return root
-
-
-def make_checkpoint(path: Path) -> Path:
-    torch.manual_seed(0)
-    config = ModelConfig(**TINY)
-    return save_checkpoint(path, InsertNeRF(config), config)
 
 
 @pytest.fixture(scope="module")
@@ -77,23 +23,15 @@ def scene_and_checkpoint(tmp_path_factory):
     return make_scene(root / "scene", {"train": 6}), make_checkpoint(root / "tiny.pt")
 
 
-def run(*args: str):
-    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
-
-
-def _render(scene: Path, ckpt: Path, out: Path, *extra: str):
-    return run("render", scene, "--out", out, "--checkpoint", ckpt, "--device", "cpu", "--resolution", 16,
-               "--views", 2, *extra)
-
-
 def _mtimes(folder: Path) -> dict[str, int]:
     return {p.name: p.stat().st_mtime_ns for p in sorted(folder.iterdir())}
 
 
+@pytest.mark.slow
 def test_render_writes_every_output_with_the_right_types(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
     out = tmp_path / "views"
-    result = _render(scene, ckpt, out, "--frames", 3, "--fps", 5)
+    result = render_command(scene, ckpt, out, "--frames", 3, "--fps", 5)
     assert result.exit_code == 0, result.output
     assert "3 frames (orbit, 16x12)" in result.output and "clipped" not in result.output
     cams = json.loads((out / "cameras.json").read_text())
@@ -121,13 +59,14 @@ def test_render_writes_every_output_with_the_right_types(scene_and_checkpoint, t
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]
 
 
+@pytest.mark.slow
 def test_depth_is_in_the_scene_units(scene_and_checkpoint, tmp_path):
     # The same scene with every length doubled normalises to the same scene: the frames match and the depths
     # read back through cameras.json's scale double.
     scene, ckpt = scene_and_checkpoint
     double = make_scene(tmp_path / "double", {"train": 6}, scale=2.0)
-    assert _render(scene, ckpt, tmp_path / "a", "--frames", 1).exit_code == 0
-    assert _render(double, ckpt, tmp_path / "b", "--frames", 1).exit_code == 0
+    assert render_command(scene, ckpt, tmp_path / "a", "--frames", 1).exit_code == 0
+    assert render_command(double, ckpt, tmp_path / "b", "--frames", 1).exit_code == 0
     scale_a, scale_b = (json.loads((tmp_path / d / "cameras.json").read_text())["depth_unit_scale_factor"]
                         for d in "ab")
     depth_a = iio.imread(tmp_path / "a" / "depth" / "00000.png") * scale_a
@@ -139,15 +78,16 @@ def test_depth_is_in_the_scene_units(scene_and_checkpoint, tmp_path):
     assert np.abs(rgb_a - rgb_b).max() <= 1
 
 
+@pytest.mark.slow
 def test_interrupted_render_resumes_only_missing_frames(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
     out = tmp_path / "views"
-    assert _render(scene, ckpt, out, "--frames", 4).exit_code == 0
+    assert render_command(scene, ckpt, out, "--frames", 4).exit_code == 0
     before = _mtimes(out / "frames")
     for sub in ("frames", "depth_vis"):  # as if the run had been stopped while frames 1 and 3 were written
         (out / sub / "00001.png").unlink()
     (out / "frames" / "00003.png").unlink()
-    result = _render(scene, ckpt, out, "--frames", 4)
+    result = render_command(scene, ckpt, out, "--frames", 4)
     assert result.exit_code == 0, result.output
     assert "rendered 2 (2 kept from the earlier run)" in result.output
     after = _mtimes(out / "frames")
@@ -156,52 +96,56 @@ def test_interrupted_render_resumes_only_missing_frames(scene_and_checkpoint, tm
     assert (out / "depth_vis" / "00001.png").is_file()
 
 
+@pytest.mark.slow
 def test_other_settings_need_overwrite(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
     out = tmp_path / "views"
-    assert _render(scene, ckpt, out, "--frames", 2).exit_code == 0
+    assert render_command(scene, ckpt, out, "--frames", 2).exit_code == 0
     state = (out / STATE_FILE).read_text()
-    refused = _render(scene, ckpt, out, "--frames", 3)
+    refused = render_command(scene, ckpt, out, "--frames", 3)
     assert refused.exit_code == 1 and "--overwrite" in refused.output and "Traceback" not in refused.output
     assert (out / STATE_FILE).read_text() == state and not (out / "frames" / "00002.png").exists()
-    replaced = _render(scene, ckpt, out, "--frames", 3, "--overwrite")
+    replaced = render_command(scene, ckpt, out, "--frames", 3, "--overwrite")
     assert replaced.exit_code == 0 and "rendered 3" in replaced.output
     # --overwrite with the same settings renders everything again instead of resuming.
-    again = _render(scene, ckpt, out, "--frames", 3, "--overwrite")
+    again = render_command(scene, ckpt, out, "--frames", 3, "--overwrite")
     assert "rendered 3" in again.output and "kept" not in again.output
 
 
+@pytest.mark.slow
 def test_frames_of_a_changed_path_are_not_mixed(tmp_path):
     # Same command, but the scene's poses changed in between: the kept frames would belong to another path.
     scene, ckpt = make_scene(tmp_path / "scene", {"train": 6}), make_checkpoint(tmp_path / "tiny.pt")
     out = tmp_path / "views"
-    assert _render(scene, ckpt, out, "--frames", 2).exit_code == 0
+    assert render_command(scene, ckpt, out, "--frames", 2).exit_code == 0
     (out / "frames" / "00001.png").unlink()
     meta = json.loads((scene / "transforms_train.json").read_text())
     meta["frames"][0]["transform_matrix"][2][3] += 0.3  # raise the first camera
     (scene / "transforms_train.json").write_text(json.dumps(meta))
-    result = _render(scene, ckpt, out, "--frames", 2)
+    result = render_command(scene, ckpt, out, "--frames", 2)
     assert result.exit_code == 1 and "different camera path" in result.output
-    assert _render(scene, ckpt, out, "--frames", 2, "--overwrite").exit_code == 0
+    assert render_command(scene, ckpt, out, "--frames", 2, "--overwrite").exit_code == 0
 
 
+@pytest.mark.slow
 def test_depth_maps_of_another_scale_are_not_mixed(scene_and_checkpoint, tmp_path):
     # A render resumed after insertnerf changed how far a frame's bound reaches: the kept depth PNGs were written
     # at the old scale, which the new cameras.json would misread.
     scene, ckpt = scene_and_checkpoint
     out = tmp_path / "views"
-    assert _render(scene, ckpt, out, "--frames", 2).exit_code == 0
+    assert render_command(scene, ckpt, out, "--frames", 2).exit_code == 0
     (out / "frames" / "00001.png").unlink()
     kept = (out / "depth" / "00000.png").read_bytes()
     cams = json.loads((out / "cameras.json").read_text())
     cams["depth_unit_scale_factor"] *= 2
     (out / "cameras.json").write_text(json.dumps(cams))
-    result = _render(scene, ckpt, out, "--frames", 2)
+    result = render_command(scene, ckpt, out, "--frames", 2)
     assert result.exit_code == 1 and "depth scale" in result.output and "Traceback" not in result.output
     assert (out / "depth" / "00000.png").read_bytes() == kept and not (out / "frames" / "00001.png").exists()
-    assert _render(scene, ckpt, out, "--frames", 2, "--overwrite").exit_code == 0
+    assert render_command(scene, ckpt, out, "--frames", 2, "--overwrite").exit_code == 0
 
 
+@pytest.mark.slow
 def test_encodings_are_reused_while_the_reference_views_repeat(scene_and_checkpoint, tmp_path, monkeypatch):
     scene, ckpt = scene_and_checkpoint
     calls = []
@@ -213,7 +157,7 @@ def test_encodings_are_reused_while_the_reference_views_repeat(scene_and_checkpo
 
     monkeypatch.setattr(InsertNeRF, "encode", counted)
     # All 6 views as references for every frame: one encoding serves the whole orbit.
-    assert _render(scene, ckpt, tmp_path / "all", "--frames", 4, "--views", 6).exit_code == 0
+    assert render_command(scene, ckpt, tmp_path / "all", "--frames", 4, "--views", 6).exit_code == 0
     assert calls == [6]
 
 
@@ -222,14 +166,15 @@ def test_refuses_a_foreign_non_empty_folder(scene_and_checkpoint, tmp_path):
     out = tmp_path / "precious"
     out.mkdir()
     (out / "notes.txt").write_text("keep me")
-    result = _render(scene, ckpt, out, "--frames", 2)
+    result = render_command(scene, ckpt, out, "--frames", 2)
     assert result.exit_code == 1 and "already holds other files" in result.output
     assert (out / "notes.txt").read_text() == "keep me" and not (out / "frames").exists()
 
 
+@pytest.mark.slow
 def test_input_path_and_spiral_by_layout(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
-    result = _render(scene, ckpt, tmp_path / "input", "--path", "input", "--resolution", 8)
+    result = render_command(scene, ckpt, tmp_path / "input", "--path", "input", "--resolution", 8)
     assert result.exit_code == 0 and "6 frames (input" in result.output
     inputs = json.loads((scene / "transforms_train.json").read_text())["frames"]
     rendered = json.loads((tmp_path / "input" / "cameras.json").read_text())["frames"]
@@ -237,9 +182,9 @@ def test_input_path_and_spiral_by_layout(scene_and_checkpoint, tmp_path):
                                atol=1e-9)
     # A forward-facing scene gets a spiral by default; an object-centric one refuses a spiral with advice.
     forward = make_scene(tmp_path / "forward", {"train": 6}, layout="forward")
-    spiral = _render(forward, ckpt, tmp_path / "spiral", "--frames", 2)
+    spiral = render_command(forward, ckpt, tmp_path / "spiral", "--frames", 2)
     assert spiral.exit_code == 0 and "2 frames (spiral" in spiral.output, spiral.output
-    refused = _render(scene, ckpt, tmp_path / "no-spiral", "--path", "spiral", "--frames", 2)
+    refused = render_command(scene, ckpt, tmp_path / "no-spiral", "--path", "spiral", "--frames", 2)
     assert refused.exit_code == 1 and "--path orbit" in refused.output
     assert not (tmp_path / "no-spiral").exists()  # refused before the output folder was made
 
@@ -248,7 +193,7 @@ def test_no_ffmpeg_fails_before_any_work(scene_and_checkpoint, tmp_path, monkeyp
     scene, ckpt = scene_and_checkpoint
     for exe in (str(tmp_path / "no-such-ffmpeg"), "/bin/false"):
         monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", exe)
-        result = _render(scene, ckpt, tmp_path / "out", "--frames", 2)
+        result = render_command(scene, ckpt, tmp_path / "out", "--frames", 2)
         assert result.exit_code == 1 and "ffmpeg" in result.output and "Traceback" not in result.output
         assert not (tmp_path / "out").exists()
 
@@ -257,11 +202,12 @@ def test_bad_input_is_one_line_error(scene_and_checkpoint, tmp_path):
     _, ckpt = scene_and_checkpoint
     empty = tmp_path / "empty"
     empty.mkdir()
-    result = _render(empty, ckpt, tmp_path / "out", "--frames", 2)
+    result = render_command(empty, ckpt, tmp_path / "out", "--frames", 2)
     assert result.exit_code == 1 and "Traceback" not in result.output
     assert result.output.startswith("Error:") and len(result.output.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["full", "fast"])
 def test_model_renders_with_bundled_weights_and_excludes_checkpoint(scene_and_checkpoint, tmp_path, model):
     scene, ckpt = scene_and_checkpoint
@@ -273,15 +219,16 @@ def test_model_renders_with_bundled_weights_and_excludes_checkpoint(scene_and_ch
     state = json.loads((out / STATE_FILE).read_text())
     assert state["checkpoint_sha256"] == checkpoint_sha256(bundled_checkpoint(model))
     # Naming the default model beside --checkpoint is refused too: two sources of weights, whichever they are.
-    both = _render(scene, ckpt, tmp_path / "both", "--model", model)
+    both = render_command(scene, ckpt, tmp_path / "both", "--model", model)
     assert both.exit_code == 1 and "pass one of them" in both.output
     assert not (tmp_path / "both").exists()
 
 
+@pytest.mark.slow
 def test_exact_and_default_renders_are_separate_runs(scene_and_checkpoint, tmp_path):
     # --exact changes the frames, so a re-run with it must re-render instead of resuming the other run's frames.
     scene, ckpt = scene_and_checkpoint
     out = tmp_path / "views"
-    assert _render(scene, ckpt, out, "--frames", 1).exit_code == 0
-    again = _render(scene, ckpt, out, "--frames", 1, "--exact")
+    assert render_command(scene, ckpt, out, "--frames", 1).exit_code == 0
+    again = render_command(scene, ckpt, out, "--frames", 1, "--exact")
     assert again.exit_code == 1 and "--overwrite" in again.output

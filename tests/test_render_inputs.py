@@ -5,7 +5,7 @@ from __future__ import annotations
 import imageio.v3 as iio
 import numpy as np
 import pytest
-from test_render_cli import make_checkpoint, make_scene, run
+from cli_fixtures import make_checkpoint, make_scene, run
 
 from insertnerf_cli.pipelines.inputs import unposed_photos
 
@@ -32,6 +32,7 @@ def test_a_project_folder_with_images_is_photos_and_a_scene_is_not(tmp_path):
     assert unposed_photos(tmp_path / "empty") is None
 
 
+@pytest.mark.slow
 def test_render_of_a_project_folder_estimates_poses_instead_of_refusing(tmp_path):
     """Three noise photos cannot be posed: the run tries (and fails cleanly), where it used to refuse."""
     _photos(tmp_path / "project" / "images")

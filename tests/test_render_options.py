@@ -6,7 +6,7 @@ import json
 from dataclasses import replace
 
 import pytest
-from test_render_cli import make_checkpoint, make_scene, run
+from cli_fixtures import make_checkpoint, make_scene, run
 
 from insertnerf_cli.config import config_from_json, config_to_json
 from insertnerf_cli.errors import UserError
@@ -38,6 +38,7 @@ def _config(options: RenderOptions, checkpoint) -> RenderConfig:
     return RenderConfig(frames=3, resolution=16, views=2, checkpoint=checkpoint, options=options)
 
 
+@pytest.mark.slow
 def test_a_render_records_its_options_and_resumes_only_under_the_same_ones(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
     out = tmp_path / "views"
@@ -60,6 +61,7 @@ def test_a_render_records_its_options_and_resumes_only_under_the_same_ones(scene
     assert (summary.rendered, summary.resumed) == (1, 2)
 
 
+@pytest.mark.slow
 def test_eval_records_its_options_in_the_json_and_the_page(scene_and_checkpoint, tmp_path):
     scene, ckpt = scene_and_checkpoint
     result = run("eval", scene, "--checkpoint", ckpt, "--device", "cpu", "--resolution", 16, "--views", "2,3",

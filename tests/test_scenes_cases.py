@@ -1,7 +1,6 @@
 """Readers on the cases users hit: no poses, escaping paths, missing or mixed images, distortion, our keys."""
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,19 +12,8 @@ import torch
 from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.scenes import SceneError, load_scene, write_blender_transforms, write_nerfstudio_transforms
 from insertnerf_cli.scenes.images import undistort
-from scene_fixtures import (HEIGHT, WIDTH, known_scene, look_at, pattern_image, write_blender, write_colmap,
+from scene_fixtures import (HEIGHT, WIDTH, edit_json, look_at, pattern_image, write_blender, write_colmap,
                             write_images, write_nerfstudio)
-
-
-@pytest.fixture()
-def known():
-    return known_scene()
-
-
-def edit_json(path: Path, change) -> None:
-    data = json.loads(path.read_text())
-    change(data)
-    path.write_text(json.dumps(data))
 
 
 def dot_image(xy: np.ndarray, height: int = HEIGHT, width: int = WIDTH) -> np.ndarray:

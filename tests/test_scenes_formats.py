@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from insertnerf_cli.scenes import Scene, load_scene
-from scene_fixtures import (KnownScene, known_scene, write_blender, write_colmap, write_dtu_idr,
+from scene_fixtures import (KnownScene, write_blender, write_colmap, write_dtu_idr,
                             write_dtu_mvsnet, write_llff, write_nerfstudio)
 
 TOL = 1e-6
@@ -24,11 +24,6 @@ WRITERS: dict[str, Callable[[Path, KnownScene], Path]] = {
     "dtu-idr": write_dtu_idr,
 }
 FORMAT_NAMES = {"colmap-bin": "colmap", "colmap-txt": "colmap", "dtu-mvsnet": "dtu", "dtu-idr": "dtu"}
-
-
-@pytest.fixture(scope="module")
-def known() -> KnownScene:
-    return known_scene()
 
 
 def order_by_name(scene: Scene, known: KnownScene) -> list[int]:
@@ -106,9 +101,9 @@ def test_scene_file_may_be_given(tmp_path: Path, known: KnownScene) -> None:
     assert len(load_scene(tmp_path / "transforms.json")) == len(known.names)
 
 
-def test_load_views_rescales_images_and_cameras(tmp_path: Path, known: KnownScene) -> None:
+def test_load_sizes_rescales_images_and_cameras_rescale_alike(tmp_path: Path, known: KnownScene) -> None:
     scene = load_scene(write_nerfstudio(tmp_path, known))
-    images, cams = scene.load_views([2, 0], 12, 16)
+    images, = scene.load_sizes([2, 0], [(12, 16)])
     assert images.shape == (2, 12, 16, 3) and images.dtype == torch.float32
-    torch.testing.assert_close(cams.K, known.cameras.rescale(12, 16).K[[2, 0]])
+    torch.testing.assert_close(scene.cameras.subset([2, 0]).rescale(12, 16).K, known.cameras.rescale(12, 16).K[[2, 0]])
     assert scene.size_for(16) == (12, 16)

@@ -19,7 +19,7 @@ from insertnerf_cli.cli.main import cli
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.synth import CaptureOptions, SceneSpec, SynthOptions, build_dataset, generate_dataset
-from insertnerf_cli.synth.dataset import _init_worker, _remove_temporaries, render_into
+from insertnerf_cli.synth.dataset import _init_worker, _remove_temporaries, _single_threaded, render_into
 from insertnerf_cli.synth.implicit import mesh_field, sphere_sdf
 from insertnerf_cli.synth.layouts import held_out_indices, look_at
 from insertnerf_cli.synth.scene import scene_cameras, scene_splits, scene_world
@@ -41,6 +41,7 @@ def _files(root: Path) -> dict[str, bytes]:
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
+@pytest.mark.slow
 def test_same_seed_gives_identical_bytes_and_another_seed_does_not(tmp_path):
     options = _options(capture=CaptureOptions(noise=True, jitter=True, jpeg=True, photo=True))
     generate_dataset(tmp_path / "a", options, workers=1)
@@ -53,6 +54,7 @@ def test_same_seed_gives_identical_bytes_and_another_seed_does_not(tmp_path):
     assert a["scene_00000/train/r_000.png"] != c["scene_00000/train/r_000.png"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("layout", ["object", "forward", "360", "handheld"])
 def test_load_scene_reads_back_the_cameras_used_to_render(tmp_path, layout):
     spec = _options(layout=layout, aspects=(4 / 3,)).spec(0)
@@ -103,6 +105,7 @@ def _sample_depth(depth: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.nda
     return 1.0 / value, valid & (curvature < 1e-3 * inverse.mean(axis=1))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("layout", ["360", "forward"])
 def test_depth_reprojects_onto_the_same_surface_point_in_another_view(tmp_path, layout):
     # 16 views: neighbours on a 360 orbit are ~22 degrees apart and share most of the scene.
@@ -126,6 +129,7 @@ def test_depth_reprojects_onto_the_same_surface_point_in_another_view(tmp_path, 
     assert float(error.max()) < 0.5, f"reprojection error up to {float(error.max()):.3f} px"
 
 
+@pytest.mark.slow
 def test_a_killed_run_is_resumed_without_redoing_finished_scenes(tmp_path):
     options = _options(layout="object")
     out = tmp_path / "data"
@@ -142,6 +146,7 @@ def test_a_killed_run_is_resumed_without_redoing_finished_scenes(tmp_path):
     assert (out / "scene_00000" / "train" / "r_000.png").stat().st_mtime_ns == finished
 
 
+@pytest.mark.slow
 def test_refuses_a_folder_with_another_dataset_or_other_files(tmp_path):
     generate_dataset(tmp_path / "d", _options(scenes=1, layout="object"), workers=1)
     with pytest.raises(UserError, match="other options"):
@@ -153,6 +158,7 @@ def test_refuses_a_folder_with_another_dataset_or_other_files(tmp_path):
     assert (tmp_path / "e" / "notes.txt").read_text() == "mine"
 
 
+@pytest.mark.slow
 def test_manifest_rebuilds_a_scene_exactly(tmp_path):
     generate_dataset(tmp_path / "d", _options(scenes=1, layout="forward"), workers=1)
     manifest = json.loads((tmp_path / "d" / "manifest.json").read_text())
@@ -161,6 +167,7 @@ def test_manifest_rebuilds_a_scene_exactly(tmp_path):
     assert _files(tmp_path / spec.name) == _files(tmp_path / "d" / spec.name)
 
 
+@pytest.mark.slow
 def test_cli_renders_and_reports_bad_options_in_one_line(tmp_path):
     runner = CliRunner()
     result = runner.invoke(cli, ["synth", str(tmp_path / "s"), "--scenes", "1", "--views", "3",
@@ -206,6 +213,7 @@ def test_held_out_views_are_spread_and_counted_exactly():
     assert held_out_indices(5, 5) == [0, 1, 2, 3, 4] and held_out_indices(5, 0) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("layout", ["object", "forward", "360", "handheld"])
 def test_cameras_stay_inside_the_enclosure_and_outside_every_shape(layout):
     from insertnerf_cli.synth.compose import COMPOSERS
@@ -231,10 +239,11 @@ def test_cameras_stay_inside_the_enclosure_and_outside_every_shape(layout):
 def test_synth_workers_leave_ctrl_c_to_the_parent():
     # A terminal sends Ctrl-C to every worker too; one that raised KeyboardInterrupt printed a traceback.
     context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
-    with context.Pool(1, initializer=_init_worker) as pool:
+    with _single_threaded(), context.Pool(1, initializer=_init_worker) as pool:  # as _run forks its workers
         assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
 
 
+@pytest.mark.slow
 def test_a_run_with_workers_ends_without_a_stack_trace_from_them(tmp_path):
     # The pool ends its workers with SIGTERM; forked from a parent that imported pycolmap (every command is
     # imported), each printed glog's "*** SIGTERM received ... stack trace" until the worker reset the signal.

@@ -81,6 +81,7 @@ def test_noise_and_jpeg_change_pixels_only_when_switched_on():
     assert (noisy != plain).mean() > 0.5 and (jpeg != plain).mean() > 0.5 and view.jpeg_quality == 60
 
 
+@pytest.mark.slow
 def test_cli_photo_records_every_views_capture_in_scene_json(tmp_path):
     result = CliRunner().invoke(cli, ["synth", str(tmp_path / "s"), "--scenes", "1", "--views", "4",
                                       "--resolution", "32", "--workers", "1", "--layout", "handheld", "--photo"])

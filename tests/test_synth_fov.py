@@ -29,6 +29,7 @@ def _long_side_fov(scene_dir) -> float:
     return math.degrees(2 * math.atan(0.5 * long_side / focal))
 
 
+@pytest.mark.slow
 def test_every_scene_sees_a_field_of_view_inside_the_range_asked_for(tmp_path):
     result = CliRunner().invoke(cli, ["synth", str(tmp_path / "s"), "--scenes", "3", "--views", "3",
                                       "--resolution", str(RES), "--workers", "1", "--layout", "object",
@@ -42,6 +43,7 @@ def test_every_scene_sees_a_field_of_view_inside_the_range_asked_for(tmp_path):
     assert SceneSpec.from_json(manifest["scenes"][0]).fov == (20.0, 24.0)
 
 
+@pytest.mark.slow
 def test_the_default_range_is_left_out_of_the_manifest_so_older_datasets_resume(tmp_path):
     options = SynthOptions(scenes=1, views=3, test_views=1, resolution=RES, layout="object", seed=5)
     generate_dataset(tmp_path / "d", options, workers=1)
@@ -56,6 +58,7 @@ def test_the_default_range_is_left_out_of_the_manifest_so_older_datasets_resume(
     assert "already there" in result.output
 
 
+@pytest.mark.slow
 def test_a_narrower_range_frames_the_same_scene_through_a_longer_lens(tmp_path):
     base = dict(scenes=1, views=3, test_views=1, resolution=RES, layout="object", seed=2)  # an open stage
     generate_dataset(tmp_path / "wide", SynthOptions(**base), workers=1)

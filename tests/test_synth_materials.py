@@ -35,6 +35,7 @@ def test_pink_noise_has_a_one_over_f_amplitude_spectrum(exponent):
     assert _radial_slope(field) == pytest.approx(-exponent, abs=0.12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(NATURAL))
 def test_natural_textures_tile_and_stay_in_range(name):
     for seed in range(3):

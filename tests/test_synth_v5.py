@@ -53,6 +53,7 @@ def _first_with_sky(layout: str) -> SceneSpec:
     raise AssertionError("no sky seen in 30 scenes")
 
 
+@pytest.mark.slow
 def test_sky_pixels_have_depth_zero_exactly_where_rays_leave_the_scene(tmp_path):
     spec = _first_with_sky("forward")
     render_into(tmp_path, spec)
@@ -82,6 +83,7 @@ def test_sky_pixels_have_depth_zero_exactly_where_rays_leave_the_scene(tmp_path)
     assert record["world"]["sky"] == "at infinity (depth 0)"
 
 
+@pytest.mark.slow
 def test_rooms_have_no_sky_and_every_ray_ends_on_a_surface(tmp_path):
     for index in range(20):
         spec = _spec("360", index)
@@ -145,6 +147,7 @@ def test_handheld_orbit_varies_height_and_distance_around_the_subject():
         assert (uv[:, 0] - uv.new_tensor([cameras.width / 2, cameras.height / 2])).abs().max() < cameras.width / 2
 
 
+@pytest.mark.slow
 def test_handheld_photo_scenes_are_identical_whatever_the_workers(tmp_path):
     options = SynthOptions(scenes=2, views=4, test_views=1, resolution=32, layout="handheld", seed=5,
                            capture=CaptureOptions(photo=True))
@@ -153,6 +156,7 @@ def test_handheld_photo_scenes_are_identical_whatever_the_workers(tmp_path):
     assert _files(tmp_path / "a") == _files(tmp_path / "b")
 
 
+@pytest.mark.slow
 def test_a_synth_4_dataset_is_recognised_and_refused_without_overwrite(tmp_path):
     options = SynthOptions(scenes=1, views=2, test_views=1, resolution=16, layout="object", seed=1)
     out = tmp_path / "d"

@@ -22,6 +22,7 @@ from insertnerf_cli.config import ModelConfig, config_to_json
 from insertnerf_cli.model import InsertNeRF
 from insertnerf_cli.scenes import write_blender_transforms
 from insertnerf_cli.training import TrainConfig, train
+from cli_fixtures import one_line_error
 
 SIZE = 32  # image side in pixels
 RADIUS = 4.0  # camera distance from the sphere at the origin
@@ -107,6 +108,7 @@ def cli_args(dataset: Path, out: Path, tiny_config: Path, *extra: str) -> list[s
             "--rays", "32", "--resolution", str(SIZE), "--val-every", "1000", "--ckpt-every", "1", "--log-every", "1", *extra]
 
 
+@pytest.mark.slow
 def test_cli_trains_two_steps_then_the_checkpoint_reloads_and_resumes(dataset, tiny_config, tmp_path):
     out = tmp_path / "run"
     result = CliRunner().invoke(cli, cli_args(dataset, out, tiny_config, "--steps", "2"))
@@ -133,6 +135,7 @@ def test_cli_trains_two_steps_then_the_checkpoint_reloads_and_resumes(dataset, t
     assert steps == [1, 2, 3]
 
 
+@pytest.mark.slow
 def test_resumed_training_matches_uninterrupted_training_exactly(dataset, tmp_path):
     cpu = torch.device("cpu")
     straight = train(dataset, tmp_path / "straight", small(steps=4), cpu)
@@ -152,14 +155,7 @@ def test_resumed_training_matches_uninterrupted_training_exactly(dataset, tmp_pa
     assert any(not torch.equal(initial[n], a.model_state[n]) for n in initial)
 
 
-def one_line_error(result) -> str:
-    assert result.exit_code != 0
-    assert "Traceback" not in result.output
-    lines = [line for line in result.output.strip().splitlines() if line.startswith("Error")]
-    assert len(lines) == 1, result.output
-    return lines[0]
-
-
+@pytest.mark.slow
 def test_diverging_loss_stops_with_one_line_and_keeps_the_checkpoint(dataset, tiny_config, tmp_path):
     out = tmp_path / "run"
     result = CliRunner().invoke(cli, cli_args(dataset, out, tiny_config, "--steps", "6", "--lr", "1e30"))
@@ -185,6 +181,7 @@ def test_scene_with_too_few_views_is_one_line(tmp_path, tiny_config):
     assert "lower --views" in one_line_error(result)
 
 
+@pytest.mark.slow
 def test_run_folder_rules(dataset, tiny_config, tmp_path):
     out = tmp_path / "run"
     assert CliRunner().invoke(cli, cli_args(dataset, out, tiny_config, "--steps", "1")).exit_code == 0
@@ -204,6 +201,7 @@ def test_run_folder_rules(dataset, tiny_config, tmp_path):
     assert read_checkpoint(out / "checkpoints" / "last.pt").model_config.conditioning == "concat"
 
 
+@pytest.mark.slow
 def test_ctrl_c_saves_a_checkpoint_and_resume_continues(dataset, tmp_path):
     out = tmp_path / "run"
     config = small(steps=100_000, val_every=100_000, ckpt_every=100_000)
@@ -222,6 +220,7 @@ def test_ctrl_c_saves_a_checkpoint_and_resume_continues(dataset, tmp_path):
     assert more.step == result.step + 1 and more.stopped == "steps"
 
 
+@pytest.mark.slow
 def test_time_budget_stops_and_saves(dataset, tmp_path):
     result = train(dataset, tmp_path / "run", small(steps=100_000, minutes=0.02), torch.device("cpu"))
     assert result.stopped == "minutes" and result.step >= 1

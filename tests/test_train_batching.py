@@ -25,8 +25,8 @@ from insertnerf_cli.training.batches import (BatchObjective, DrawGenerators, che
 from insertnerf_cli.training.data import ImageCache, draw_training_views, find_scenes
 from insertnerf_cli.training.device_data import load_training_set
 from insertnerf_cli.training.session import Objective
-from test_train import (SIZE, TINY, cli_args, one_line_error, orbit_cameras, small, tiny_config,  # noqa: F401
-                        write_scene)
+from cli_fixtures import one_line_error
+from test_train import SIZE, TINY, cli_args, orbit_cameras, small, tiny_config, write_scene  # noqa: F401
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 COLOURS = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0)]
@@ -90,6 +90,7 @@ def test_each_scene_of_a_batch_brings_its_own_views_and_colours(flat_scenes, bud
     assert torch.allclose(batch.rays.origins, centres)
 
 
+@pytest.mark.slow
 def test_device_draws_follow_the_nearest_pool_rule_of_the_legacy_draw(flat_scenes):
     """The frequencies of (target, source) view pairs match data.draw_training_views (NumPy), seeded: ~3 sigma."""
     scenes = find_scenes(flat_scenes, SIZE, print, show_progress=False)
@@ -108,6 +109,7 @@ def test_device_draws_follow_the_nearest_pool_rule_of_the_legacy_draw(flat_scene
     assert torch.allclose(new / new.sum(), old / old.sum(), atol=0.015)
 
 
+@pytest.mark.slow
 def test_a_batch_of_scenes_is_the_mean_of_one_scene_at_a_time(dataset):
     _, _, draw, batch = step_batch(dataset, 64, batch=2, rays=32)
     torch.manual_seed(0)
@@ -140,6 +142,7 @@ def assert_same_training(a: Path, b: Path) -> None:
             assert torch.equal(value, ob["state"][k][name]), (k, name)
 
 
+@pytest.mark.slow
 def test_two_plus_two_resumed_steps_equal_four_with_several_scenes(dataset, tmp_path):
     cpu = torch.device("cpu")
     straight = train(dataset, tmp_path / "straight", small(steps=4, batch_scenes=2, log_every=3), cpu)
@@ -151,6 +154,7 @@ def test_two_plus_two_resumed_steps_equal_four_with_several_scenes(dataset, tmp_
     assert torch.equal(a["draw_device"], b["draw_device"]) and torch.equal(a["torch"], b["torch"])
 
 
+@pytest.mark.slow
 def test_a_set_larger_than_the_budget_streams_and_trains_the_same(dataset, tmp_path, capsys):
     """Budget 0: every step reads its views from disk, one step ahead; 2 + 2 resumed streamed steps equal 4
     resident ones (the checkpoint keeps the generator state from before the look-ahead draw)."""
@@ -173,6 +177,7 @@ def test_batch_scene_settings_that_cannot_work_are_one_line(dataset, tiny_config
     assert "lower --batch-scenes" in one_line_error(many)
 
 
+@pytest.mark.slow
 def test_a_non_finite_loss_between_logs_stops_before_any_save(dataset, tmp_path):
     out = tmp_path / "run"
     with pytest.raises(UserError, match="training diverged") as err:
@@ -212,6 +217,7 @@ def _ddp_rank(rank: int, dataset: Path, out: Path, port: int, compile: bool, pre
         distributed.stop(ctx)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("compile, precision", [(False, "fp32"), (True, "fp32"), (True, "bf16")],
                          ids=["eager", "compiled-aggregation", "compiled-bf16"])  # the last: the fastest CPU setting
 def test_ddp_with_gloo_on_two_processes_keeps_the_ranks_in_step(dataset, tmp_path, compile, precision):
@@ -222,6 +228,7 @@ def test_ddp_with_gloo_on_two_processes_keeps_the_ranks_in_step(dataset, tmp_pat
     assert read_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt").train_state.step == 2
 
 
+@pytest.mark.slow
 def test_a_run_from_before_the_device_draws_resumes_with_a_warning(dataset, tmp_path, capsys):
     """A checkpoint written before issue 9 has no draw generators: --resume goes on with a fresh stream."""
     cpu = torch.device("cpu")

@@ -64,6 +64,7 @@ def test_a_guide_sends_the_fine_samples_to_its_depth_and_nan_leaves_them_alone()
     assert unguided == pytest.approx(plain)
 
 
+@pytest.mark.slow
 def test_training_with_the_guide_runs_and_is_saved_with_the_run(synth_set, tmp_path):  # noqa: F811
     from insertnerf_cli.training.config import saved_train_config
 
@@ -89,6 +90,7 @@ def feature_priors(root, budget_mb: int):
     return data, FeaturePriors(data)
 
 
+@pytest.mark.slow
 def test_the_feature_prior_lies_on_the_true_surface_from_the_sources_corners_alone(textured_set):
     data, priors = feature_priors(textured_set, 64)
     g = data.groups[0]
@@ -110,6 +112,7 @@ def test_the_feature_prior_lies_on_the_true_surface_from_the_sources_corners_alo
     assert torch.allclose(again[given], prior[given])
 
 
+@pytest.mark.slow
 def test_training_with_the_feature_prior_runs_and_is_saved_with_the_run(textured_set, tmp_path):
     from insertnerf_cli.training.config import saved_train_config
 

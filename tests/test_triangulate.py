@@ -11,23 +11,17 @@ import trimesh
 from insertnerf_cli.scenes import load_scene
 from insertnerf_cli.scenes.writers import write_nerfstudio_transforms
 from insertnerf_cli.sfm.triangulate import TriangulateOptions, triangulate_points, with_points
-from scene_fixtures import bench_module
+import textured_scenes
 
 VIEWS, SIZE = 8, 160
 
 
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
-    """(a nerfstudio scene of the pose bench's textured room at its true poses, with no points; the mesh)."""
-    bench = bench_module()
-    truth = bench.render_scene(views=VIEWS, size=SIZE, arc_deg=70.0)
+    """(a nerfstudio scene of the textured room at its true poses, with no points; the mesh)."""
     root = tmp_path_factory.mktemp("posed_room")
-    (root / "images").mkdir()
-    names = [f"images/view_{i:02d}.png" for i in range(VIEWS)]
-    for name, image in zip(names, truth.images):
-        cv2.imwrite(str(root / name), image[..., ::-1])
-    write_nerfstudio_transforms(root / "transforms.json", truth.cameras, names, near=0.5, far=8.0)
-    return root, bench.scene_mesh()
+    textured_scenes.write_posed_room(root, VIEWS, SIZE)
+    return root, textured_scenes.scene_mesh()
 
 
 def _true_depth_ratio(mesh: trimesh.Trimesh, centre: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -42,6 +36,7 @@ def _true_depth_ratio(mesh: trimesh.Trimesh, centre: np.ndarray, points: np.ndar
     return dist / surface
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("epipolar", [True, False], ids=["along-epipolar-lines", "colmap-matcher"])
 def test_points_triangulated_at_the_scene_poses_lie_on_the_surface(room, epipolar: bool) -> None:
     root, mesh = room
@@ -54,9 +49,10 @@ def test_points_triangulated_at_the_scene_poses_lie_on_the_surface(room, epipola
     assert np.isfinite(ratio).mean() > 0.95
     errors = np.abs(ratio[np.isfinite(ratio)] - 1)
     assert np.median(errors) < 0.005 and np.quantile(errors, 0.9) < 0.02, (np.median(errors), np.quantile(errors, 0.9))
-    assert points.seen_from(range(VIEWS)).shape[0] == len(points)  # COLMAP keeps tracks of two views or more
+    assert bool(points.seen_mask(range(VIEWS)).all())  # COLMAP keeps tracks of two views or more
 
 
+@pytest.mark.slow
 def test_only_the_given_views_observe_and_a_held_out_view_lends_nothing(room) -> None:
     scene = load_scene(room[0])
     points = triangulate_points(scene, views=range(VIEWS - 1), quiet=True)
@@ -64,6 +60,7 @@ def test_only_the_given_views_observe_and_a_held_out_view_lends_nothing(room) ->
     assert len(points) > 200
 
 
+@pytest.mark.slow
 def test_with_points_keeps_a_scenes_own_points_and_warns_where_none_can_be_made(room, tmp_path: Path,
                                                                                 capsys) -> None:
     scene = with_points(load_scene(room[0]))
@@ -86,8 +83,9 @@ def test_with_points_keeps_a_scenes_own_points_and_warns_where_none_can_be_made(
     assert sorted(p.relative_to(flat) for p in flat.rglob("*")) == before  # COLMAP worked in a temporary folder
 
 
+@pytest.mark.slow
 def test_eval_and_render_triangulate_a_posed_scene_without_points(room, tmp_path: Path) -> None:
-    from test_render_cli import make_checkpoint, run
+    from cli_fixtures import make_checkpoint, run
 
     checkpoint = make_checkpoint(tmp_path / "tiny.pt")
     scores = {}
@@ -104,6 +102,7 @@ def test_eval_and_render_triangulate_a_posed_scene_without_points(room, tmp_path
     assert "at the scene's poses from 8 views" in result.output
 
 
+@pytest.mark.slow
 def test_photos_colmap_cannot_read_are_triangulated_from_copies(room, tmp_path: Path) -> None:
     """WebP (COLMAP has no decoder for it): copied as PNG into the temporary folder, never beside the scene."""
     source = load_scene(room[0])

@@ -37,6 +37,7 @@ def data(tmp_path):
     return root
 
 
+@pytest.mark.slow
 def test_same_config_copies_every_tensor(tiny_checkpoint):
     path, source = tiny_checkpoint
     target = InsertNeRF(TINY)
@@ -46,6 +47,7 @@ def test_same_config_copies_every_tensor(tiny_checkpoint):
         torch.testing.assert_close(target.state_dict()[name], value)
 
 
+@pytest.mark.slow
 def test_fewer_samples_keep_the_generated_layers_on_inputs_constant_along_the_ray(tiny_checkpoint):
     path, source = tiny_checkpoint
     target = InsertNeRF(FEWER)
@@ -68,6 +70,7 @@ def test_another_architecture_is_one_clear_error(tiny_checkpoint):
         warm_start(InsertNeRF(dataclasses.replace(TINY, nerf_layers=4)), read_checkpoint(path))
 
 
+@pytest.mark.slow
 def test_train_init_starts_from_the_checkpoint_and_records_it(tiny_checkpoint, data, tmp_path):
     path, source = tiny_checkpoint
     config = tmp_path / "fewer.json"
@@ -85,6 +88,7 @@ def test_train_init_starts_from_the_checkpoint_and_records_it(tiny_checkpoint, d
     torch.testing.assert_close(saved.model_state[name], source.state_dict()[name], atol=1e-6, rtol=0)
 
 
+@pytest.mark.slow
 def test_init_inside_the_run_folder_is_refused_before_overwrite_could_delete_it(tiny_checkpoint, data, tmp_path):
     path, _ = tiny_checkpoint
     run = tmp_path / "run"

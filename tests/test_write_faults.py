@@ -11,8 +11,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from test_output_safety import one_line_error, snapshot, trained_run
-from test_render_cli import _render, make_checkpoint, make_scene
+from test_output_safety import snapshot, trained_run
+from cli_fixtures import make_checkpoint, make_scene, one_line_error, render_command
 from test_train import cli_args, tiny_config  # noqa: F401  (tiny_config is a fixture)
 
 from insertnerf_cli.files.atomic import WriteError, write_bytes
@@ -71,23 +71,25 @@ def test_disk_full_write_is_one_error_and_keeps_the_old_file(small_disk):
     assert target.read_bytes() == b"old" and no_temporaries(small_disk)
 
 
+@pytest.mark.slow
 def test_render_on_a_full_disk_keeps_finished_frames_and_resumes(small_disk, tmp_path):
     scene, ckpt = make_scene(tmp_path / "scene", {"train": 6}), make_checkpoint(tmp_path / "tiny.pt")
     out = small_disk / "views"
-    assert _render(scene, ckpt, out, "--frames", 3).exit_code == 0
+    assert render_command(scene, ckpt, out, "--frames", 3).exit_code == 0
     for sub in ("frames", "depth", "depth_vis"):  # as if the run had stopped before frame 2
         (out / sub / "00002.png").unlink()
     (out / "video.mp4").unlink()
     kept = snapshot(out / "frames")
     filler = fill(small_disk)
-    message = one_line_error(_render(scene, ckpt, out, "--frames", 3), "disk full at", "free space and re-run")
+    message = one_line_error(render_command(scene, ckpt, out, "--frames", 3), "disk full at", "free space and re-run")
     assert "00002.png" in message
     assert snapshot(out / "frames") == kept and no_temporaries(out)
     filler.unlink()
-    again = _render(scene, ckpt, out, "--frames", 3)
+    again = render_command(scene, ckpt, out, "--frames", 3)
     assert again.exit_code == 0 and "rendered 1 (2 kept" in again.output, again.output
 
 
+@pytest.mark.slow
 def test_train_on_a_full_disk_keeps_the_last_checkpoint(small_disk, tiny_config, tmp_path):
     data, out = trained_run(tmp_path, small_disk / "run", tiny_config)
     last = out / "checkpoints" / "last.pt"
@@ -101,21 +103,23 @@ def test_train_on_a_full_disk_keeps_the_last_checkpoint(small_disk, tiny_config,
     assert no_temporaries(out)
 
 
+@pytest.mark.slow
 def test_zero_byte_and_truncated_frames_are_rendered_again(tmp_path):
     scene, ckpt = make_scene(tmp_path / "scene", {"train": 6}), make_checkpoint(tmp_path / "tiny.pt")
     out = tmp_path / "views"
-    assert _render(scene, ckpt, out, "--frames", 3).exit_code == 0
+    assert render_command(scene, ckpt, out, "--frames", 3).exit_code == 0
     good = (out / "frames" / "00000.png").stat().st_mtime_ns
     (out / "frames" / "00001.png").write_bytes(b"")  # a power loss after the rename, before the data
     depth = out / "depth" / "00002.png"
     depth.write_bytes(depth.read_bytes()[: len(depth.read_bytes()) // 2])
-    result = _render(scene, ckpt, out, "--frames", 3)
+    result = render_command(scene, ckpt, out, "--frames", 3)
     assert result.exit_code == 0, result.output
     assert "rendered 2 (1 kept" in result.output
     assert (out / "frames" / "00000.png").stat().st_mtime_ns == good
     assert iio.imread(out / "frames" / "00001.png").shape[:2] == iio.imread(depth).shape
 
 
+@pytest.mark.slow
 def test_failed_render_of_photos_leaves_no_output_behind(tmp_path):
     """Posing 3 noise photos fails; the output folder this run created is gone again (no render_config.json)."""
     photos = tmp_path / "photos"
@@ -124,7 +128,7 @@ def test_failed_render_of_photos_leaves_no_output_behind(tmp_path):
     for i in range(3):
         iio.imwrite(photos / f"{i}.png", rng.integers(0, 255, (64, 64, 3), dtype=np.uint8))
     ckpt = make_checkpoint(tmp_path / "tiny.pt")
-    result = _render(photos, ckpt, tmp_path / "views", "--frames", 1)
+    result = render_command(photos, ckpt, tmp_path / "views", "--frames", 1)
     assert result.exit_code == 1 and "Traceback" not in result.output, result.output
     assert not (tmp_path / "views").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["photos", "tiny.pt"]

@@ -56,12 +56,6 @@ def llff_to_opencv(poses: Tensor) -> Tensor:
     return c2w
 
 
-def opencv_to_llff(c2w: Tensor) -> Tensor:
-    """Inverse of :func:`llff_to_opencv`: OpenCV c2w [N, 4, 4] -> LLFF [N, 3, 4] ([down, right, back] + centre)."""
-    check_shape("c2w", c2w, (None, 4, 4))
-    return torch.stack([c2w[:, :3, 1], c2w[:, :3, 0], -c2w[:, :3, 2], c2w[:, :3, 3]], dim=-1)
-
-
 def w2c_to_c2w(w2c: Tensor) -> Tensor:
     """Rigid inverse [..., 4, 4] (world-to-camera, as COLMAP and DTU store it, to camera-to-world)."""
     rot = w2c[..., :3, :3]
@@ -201,17 +195,6 @@ class Cameras:
         pix = cam @ self.K.to(points).transpose(1, 2)  # [N, P, 3]
         uv = pix[..., :2] / _safe(depth)[..., None]
         return uv, depth
-
-    def sees(self, points: Tensor) -> Tensor:
-        """[N, P] True where a world point (``points`` as in :meth:`project`) lies in front of a camera and inside
-        its image."""
-        return self.in_image(*self.project(points))
-
-    def in_image(self, uv: Tensor, depth: Tensor) -> Tensor:
-        """[N, P] True where a projection (uv [N, P, 2], depth [N, P] from :meth:`project`) is in front of the
-        camera and inside its image."""
-        return (depth > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= self.width) & (uv[..., 1] >= 0) \
-            & (uv[..., 1] <= self.height)
 
     def unproject(self, uv: Tensor, depth: Tensor) -> Tensor:
         """Inverse of :meth:`project`: pixels uv [N, P, 2] at camera depth z [N, P] -> world points [N, P, 3]."""

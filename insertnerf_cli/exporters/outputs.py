@@ -245,18 +245,6 @@ def write_video(path: Path, frame_files: Sequence[Path], fps: float) -> None:
             writer.close()
 
 
-def video_codec(path: Path) -> str:
-    """The codec line ffmpeg reports for a video (e.g. "h264 (High) (avc1 / 0x31637661)")."""
-    import imageio_ffmpeg
-
-    reader = imageio_ffmpeg.read_frames(str(path))
-    try:
-        meta = next(reader)
-    finally:
-        reader.close()
-    return str(meta["codec"])
-
-
 def write_cameras_json(path: Path, cameras: Cameras, near: Tensor, far: Tensor, depth_scale: float,
                        depth_format: str = "png16", extra: dict | None = None) -> None:
     """Write cameras.json (nerfstudio transforms, OpenGL c2w) for a path of len(cameras) frames, atomically.

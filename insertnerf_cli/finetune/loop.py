@@ -19,6 +19,7 @@ from insertnerf_cli.errors import UserError
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.files.outdir import check_output
 from insertnerf_cli.finetune.data import FrozenFeatures, TargetPriors, draw, finetune_scene
+from insertnerf_cli.metrics import psnr_from_mse
 from insertnerf_cli.model import InsertNeRF, LossTerms
 from insertnerf_cli.model.checkpoint import build_model, bundled_checkpoint, read_checkpoint, save_checkpoint
 from insertnerf_cli.scenes.points import ScenePoints
@@ -231,7 +232,7 @@ def _param_groups(model: InsertNeRF, config: FinetuneConfig) -> list[dict]:
 
 
 def _psnr(mses: list[float]) -> float | None:
-    return -10.0 * math.log10(max(sum(mses) / len(mses), 1e-12)) if mses else None
+    return psnr_from_mse(sum(mses) / len(mses)) if mses else None
 
 
 def _postfix(mses: list[float], steps: int, elapsed: float, max_steps: int | None, budget_s: float | None) -> str:

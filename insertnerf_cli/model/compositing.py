@@ -5,7 +5,6 @@ through the model), so neither imports the other in a circle.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -77,8 +76,3 @@ def median_depth(weights: Tensor, t: Tensor) -> Tensor:
     share = ((half - lo) / (hi - lo).clamp(min=1e-12)).clamp(0.0, 1.0)
     t_lo = t.gather(-1, k - 1)
     return (t_lo + share * (t.gather(-1, k) - t_lo)).squeeze(-1)
-
-
-def psnr(mse: Tensor) -> Tensor:
-    """Peak signal-to-noise ratio in dB of colours in [0, 1] from their mean squared error."""
-    return -10.0 * torch.log10(mse.clamp(min=1e-10)) if torch.is_tensor(mse) else -10.0 * math.log10(mse)

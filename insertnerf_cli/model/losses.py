@@ -10,7 +10,7 @@ from torch import Tensor
 from insertnerf_cli.cameras.camera import check_shape
 from insertnerf_cli.cameras.rays import Rays
 from insertnerf_cli.config import ModelConfig
-from insertnerf_cli.model.compositing import psnr
+from insertnerf_cli.metrics import psnr_from_mse
 from insertnerf_cli.model.geometry_losses import NO_SURFACE, depth_loss, distortion_loss
 from insertnerf_cli.model.types import EncodedViews, LossTerms, RenderOutput
 
@@ -48,5 +48,5 @@ def compute_losses(cfg: ModelConfig, output: RenderOutput, target_rgb: Tensor, e
     total = (mse_coarse + mse_fine + cfg.loss_backbone_weight * backbone + cfg.loss_dynamic_weight * dynamic
              + cfg.loss_depth_weight * depth + cfg.loss_distortion_weight * distortion)
     return LossTerms(total=total, mse_coarse=mse_coarse.detach(), mse_fine=mse_fine.detach(),
-                     backbone=backbone.detach(), dynamic=dynamic.detach(), psnr_fine=psnr(mse_fine.detach()),
-                     depth=depth.detach(), distortion=distortion.detach())
+                     backbone=backbone.detach(), dynamic=dynamic.detach(),
+                     psnr_fine=psnr_from_mse(mse_fine.detach()), depth=depth.detach(), distortion=distortion.detach())

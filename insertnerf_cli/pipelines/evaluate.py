@@ -63,13 +63,13 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
         raise UserError(f"--resolution gives {size[1]}x{size[0]} images, smaller than SSIM's {SSIM_WINDOW}-px window")
     weights = checkpoint_path(config.checkpoint)
     model = load_model(weights, config.device)  # a bad checkpoint fails before the triangulation's half minute
+    prepare_side_by_sides(out_dir, scored, counts)  # an earlier eval's outputs go first; its SfM points stay
     if config.sfm_depth:  # from the references alone: a held-out photo lends nothing to its own render
         cache = None if out_dir is None else out_dir / POINTS_DIR  # kept for a later eval or render into --out
         scene = with_points(scene, [i for i in range(len(scene)) if i not in held], cache,
                             lambda file: OutputRecord(out_dir, OWNER).claim(POINTS_DIR, record_name(out_dir, file)))
     renderer = ViewRenderer(model, scene, size, max(counts), config.device, config.chunk, config.exact,
                             config.sfm_depth, config.options)
-    prepare_side_by_sides(out_dir, scored, counts)
     scores: dict[int, list[ViewScore]] = {n: [] for n in counts}
     for index in tqdm(scored, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):
         camera = scene.cameras.subset([index]).rescale(*size)

@@ -101,13 +101,6 @@ class Scene:
         # Mixed sizes of one aspect ratio: the cameras were scaled to the common size.
         return resize(img, self.cameras.height, self.cameras.width)
 
-    def load_views(self, indices: Sequence[int], height: int | None = None,
-                   width: int | None = None) -> tuple[Tensor, Cameras]:
-        """Images [V, H, W, 3] (float32) and their cameras, rescaled to height x width if given."""
-        h = height or self.cameras.height
-        w = width or self.cameras.width
-        return self.load_sizes(indices, [(h, w)])[0], self.cameras.subset(list(indices)).rescale(h, w)
-
     def load_sizes(self, indices: Sequence[int], sizes: Sequence[tuple[int, int]]) -> list[Tensor]:
         """Images [V, H, W, 3] (float32) at each (H, W) of ``sizes``, each file read and decoded once."""
         per_view = [[resize(img, h, w) for h, w in sizes] for img in map(self._decoded, indices)]

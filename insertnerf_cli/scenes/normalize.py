@@ -43,10 +43,6 @@ class Similarity:
         if not self.scale > 0:
             raise ValueError(f"similarity scale must be positive, got {self.scale}")
 
-    @classmethod
-    def identity(cls) -> "Similarity":
-        return cls(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64), 1.0)
-
     def apply_points(self, points: Tensor) -> Tensor:
         """Points [..., 3] -> [..., 3] in the new world."""
         R, t = self.rotation.to(points), self.translation.to(points)

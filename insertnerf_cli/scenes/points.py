@@ -42,15 +42,11 @@ class ScenePoints:
             return self
         return ScenePoints(self.xyz, tuple(self.observed[i] for i in indices))
 
-    def seen_from(self, views: Sequence[int], near: Sequence[int] | None = None) -> Tensor:
-        """[P', 3] the points that at least MIN_OBSERVERS of ``views`` observe: what those views alone would have
+    def seen_mask(self, views: Sequence[int], near: Sequence[int] | None = None) -> Tensor:
+        """[P] bool: the points that at least MIN_OBSERVERS of ``views`` observe, what those views alone would have
         triangulated (every point when the observations are unknown); with ``near``, only those that one of the
         ``near`` views observes too (a target's nearest views: points they see are rarely hidden from it).
         """
-        return self.xyz[self.seen_mask(views, near)]
-
-    def seen_mask(self, views: Sequence[int], near: Sequence[int] | None = None) -> Tensor:
-        """[P] bool: which points seen_from(views, near) keeps."""
         if self.observed is None:
             return torch.ones(len(self), dtype=torch.bool)
         keep = self.observers(views) >= MIN_OBSERVERS

@@ -73,8 +73,8 @@ def with_points(scene, views: Sequence[int] | None = None, cache: Path | None = 
     chosen = sorted(set(range(len(scene)) if views is None else views))
     stored = None if cache is None else cache_file(cache, cache_key(scene, chosen, options))
     if stored is not None and (points := load_points(stored, len(scene))) is not None:
-        print(f"SfM points: {len(points)} kept from an earlier run in {stored} (same photos and poses)",
-              file=sys.stderr, flush=True)
+        print(f"SfM points: {len(points)} loaded from {stored}, triangulated by an earlier run from the same photos "
+              "and poses", file=sys.stderr, flush=True)
         return replace(scene, points=points) if len(points) else scene
     try:
         points = triangulate_points(scene, chosen, options)

@@ -254,7 +254,9 @@ def _run(out: Path, pending: list[SceneSpec], workers: int, progress: bool, tota
             context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods()
                                                   else "spawn")
             try:
-                with context.Pool(min(workers, len(pending)), initializer=_init_worker) as pool:
+                # Forked while this process's OpenCV pool is down to one thread: a worker whose _init_worker
+                # reconfigured a pool whose threads the fork left behind waited for them forever.
+                with _single_threaded(), context.Pool(min(workers, len(pending)), initializer=_init_worker) as pool:
                     yield from _report(pool.imap_unordered(_worker, [(out, s) for s in pending]), bar, start)
             finally:  # the pool has terminated and joined its workers: the scenes they left half-done
                 _remove_temporaries(out, pending)

@@ -1,7 +1,6 @@
 """The training loop: draw -> encode -> render -> losses -> Adam step, with logs, validation and checkpoints."""
 from __future__ import annotations
 
-import math
 import signal
 import sys
 import threading
@@ -16,6 +15,7 @@ from tqdm import tqdm
 
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.files.lock import releases_output_locks
+from insertnerf_cli.metrics import psnr_from_mse
 from insertnerf_cli.model import LossTerms
 from insertnerf_cli.training import distributed
 from insertnerf_cli.training.config import TrainConfig, with_device_defaults
@@ -247,7 +247,7 @@ def _log(s: Session, meter: _Meter, elapsed: float, bar: tqdm, divergence: _Dive
     synced = time.monotonic()
     means = meter.means()  # waits for the queued steps: their device time joins the window's
     meter.seconds += time.monotonic() - synced
-    psnr = -10.0 * math.log10(max(means["mse_fine"], 1e-12))
+    psnr = psnr_from_mse(means["mse_fine"])
     rays_per_s = s.config.rays * s.ctx.world_size * meter.count / max(meter.seconds, 1e-9)
     lr = s.config.learning_rate(s.config.lr, s.step)
     if s.ctx.is_main:
@@ -289,7 +289,7 @@ def validate(s: Session) -> float | None:
                     rgb = s.model.render(encoded, batch.rays[chunk]).rgb  # [chunk, 3]
                     errors.append(((rgb - batch.target_rgb[chunk]) ** 2).sum())
                 mse = float(torch.stack(errors).sum()) / batch.target_rgb.numel()
-                psnrs.append(-10.0 * math.log10(max(mse, 1e-12)))
+                psnrs.append(psnr_from_mse(mse))
     finally:
         s.model.train()
     return sum(psnrs) / len(psnrs)
