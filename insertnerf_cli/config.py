@@ -77,7 +77,7 @@ class ModelConfig:
     # What a ray sees past its far bound: the reference views' colours where they see the ray's direction at
     # infinity, aggregated like any sample; ``background`` then only fills rays no view sees there.
     infinity_sample: bool = False
-    # --- loss weights (method.md section 3)
+    # --- loss weights (docs/method.md, Training)
     loss_backbone_weight: float = 0.1
     loss_dynamic_weight: float = 1.0
     # geometry supervision (model/geometry_losses.py): exact synthetic depth and mip-NeRF 360's distortion

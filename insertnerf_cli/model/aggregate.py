@@ -1,6 +1,6 @@
 """Multi-layer dynamic-static (MLDS) aggregation: per feature scale, many views of a sample -> one descriptor.
 
-Per scale l (paper section 3.2, method.md sections 7.2-7.3):
+Per scale l (paper section 3.2; docs/method.md, Aggregation):
   1. dynamic weights M_dy = softmax over valid views of an MLP on [f_n, maxpool_n f, ray-direction difference]
      and, with the visibility cue, |f_n - mean_n f|: a view that sees another surface in front of the sample
      disagrees with the others there, and the cue lets the MLP take its weight away (IBRNet's and NeuRay's idea);

@@ -2,7 +2,7 @@
 
 Down path: stride-2 stages to 1/2, 1/4, 1/8, 1/16 of the image. Up path: back to 1/8, 1/4, 1/2 with skip
 connections; a 1x1 head per scale gives the features F_2 (1/8), F_1 (1/4), F_0 (1/2). A small decoder, used only
-by the backbone reconstruction loss, rebuilds the image from the finest features (method.md section 7.7).
+by the backbone reconstruction loss, rebuilds the image from the finest features (docs/method.md, Encoder).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The training objective (paper section 3.4, method.md sections 3 and 7):
+"""The training objective (paper section 3.4; docs/method.md, Training):
 colour MSE on both passes + w_b * backbone reconstruction MSE + w_dy * dynamic-weight colour MSE, and the geometry
 terms (geometry_losses.py): w_depth * depth + w_dist * distortion, each the mean of both passes."""
 from __future__ import annotations

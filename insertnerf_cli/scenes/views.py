@@ -1,4 +1,5 @@
-"""Choosing reference (source) views for a target camera, with the rules of IBRNet and GNT (formats.md section 4).
+"""Choosing reference (source) views for a target camera, with the rules of IBRNet and GNT (docs/method.md, Frames
+and references).
 
 At test time the model sees exactly the k nearest views. In training the k views are drawn at random from a
 larger pool of nearest views, so that the model also learns from less ideal neighbours, and very rarely the

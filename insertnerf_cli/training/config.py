@@ -106,7 +106,7 @@ class TrainConfig:
             raise UserError(f"--seed must be between 0 and {_SEED_LIMIT - 1} (torch's seed range), got {self.seed}")
 
     def learning_rate(self, base: float, step: int) -> float:
-        """base * 0.5 ** (step / lr_half_life), not below lr_min (method.md section 9)."""
+        """base * 0.5 ** (step / lr_half_life), not below lr_min (docs/method.md, Training)."""
         return max(base * 0.5 ** (step / self.lr_half_life), min(self.lr_min, base))
 
 
