@@ -39,11 +39,16 @@ def test_ctrl_c_kills_the_child_at_once():
         send(os.getpid())
         time.sleep(60)  # a call that does not look at signals, like COLMAP's matcher
 
+    # A process started in the background by a non-interactive shell inherits SIGINT ignored: Ctrl-C's own handler.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
     timer.start()
     start = time.perf_counter()
-    with pytest.raises(KeyboardInterrupt):
-        run_in_child(call, pid_file.append)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_in_child(call, pid_file.append)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert time.perf_counter() - start < 2.0
     timer.join()
     with pytest.raises(ProcessLookupError):

@@ -37,11 +37,17 @@ def photos(tmp_path_factory):
     return root / "photos", root / "posed"
 
 
+def _ctrl_c_as_in_a_terminal() -> None:
+    """SIGINT back to its default in the child: a suite started in the background by a non-interactive shell
+    inherits it ignored, and Python then never turns it into KeyboardInterrupt."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _run_until(args: list[str], marker: str, delay: float, signum: int) -> tuple[int, float, str]:
     """(exit code, seconds from the signal to the exit, stderr) of `insertnerf ARGS` signalled ``delay`` s after
     ``marker`` shows on its stderr."""
     proc = subprocess.Popen([sys.executable, "-c", MAIN, *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"}, preexec_fn=_ctrl_c_as_in_a_terminal)
     seen = b""
     while marker.encode() not in seen:
         line = proc.stderr.readline()
