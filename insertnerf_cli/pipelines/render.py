@@ -109,7 +109,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     scene_dir, out_dir = Path(scene_dir), Path(out_dir)
     path_file = None if config.path_file is None else read_path_file(config.path_file)
     if path_file is not None and (config.path is not None or config.frames is not None):
-        raise UserError("a camera path file gives the frames itself: leave out the path kind and --frames")
+        raise UserError("--frames does not apply to --path FILE (nor does a path kind): the file gives every frame")
     fps = config.fps if config.fps is not None else (path_file.fps if path_file and path_file.fps else DEFAULT_FPS)
     config = replace(config, fps=fps)
     check_output(out_dir, [scene_dir], kind="input scene")
@@ -127,9 +127,8 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     user_cams = similarity.inverse().apply_cameras(path.cameras)
     check_resumable(out_dir, user_cams)  # before the long work: triangulating, fine-tuning
     if config.sfm_depth:  # once: the fine-tune's prior takes the same points (it counts its usable views' only)
-        record = OutputRecord(out_dir, RENDER_OWNER)
-        scene = with_points(scene, cache=out_dir / POINTS_DIR,
-                            claim=lambda file: record.claim(POINTS_DIR, record_name(out_dir, file)))
+        scene = with_points(scene, cache=out_dir / POINTS_DIR, claim=lambda file: OutputRecord(
+            out_dir, RENDER_OWNER).claim(POINTS_DIR, record_name(out_dir, file)))
     if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
         # Where the render's triangulation found no point, the fine-tune's (from fewer photos) would not either:
         # it trains without the prior instead of trying again and warning twice.

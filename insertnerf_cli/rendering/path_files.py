@@ -22,10 +22,12 @@ import torch
 
 from insertnerf_cli.cameras.camera import Cameras, intrinsics, opengl_to_opencv
 from insertnerf_cli.errors import SceneError, UserError
+from insertnerf_cli.scenes.jsonframes import FrameKeys, frame_intrinsics, frame_pose
 from insertnerf_cli.scenes.values import matrix, number, objects, whole
 
 # A rotation whose columns are further than this from orthonormal, or with a determinant below 0, is no camera.
 RIGID_TOLERANCE = 1e-4
+# The largest frame side a path file may ask for (frames are rendered at it, or scaled down to --resolution).
 MAX_SIDE = 16384
 
 
@@ -92,7 +94,9 @@ def _camera_path(data: dict[str, Any], source: Path) -> tuple[Cameras, float | N
                              "between 0 and 180")
         focal = 0.5 * height / math.tan(math.radians(fov) / 2.0)  # nerfstudio's fov is vertical
         Ks.append(intrinsics(focal, focal, 0.5 * width, 0.5 * height))
-        poses.append(_pose(frame["camera_to_world"], f"camera_path[{i}].camera_to_world", source, [(16,), (4, 4)]))
+        field = f"camera_path[{i}].camera_to_world"
+        c2w_gl = torch.from_numpy(matrix(frame["camera_to_world"], field, source, [(16,), (4, 4)]).reshape(4, 4))
+        poses.append(_rigid(opengl_to_opencv(c2w_gl), field, source))
     fps = number(data["fps"], "fps", source, low=0.0) if data.get("fps") is not None else None
     if fps is not None and fps <= 0:
         raise SceneError(f"{source}: fps must be positive, got {fps:g}")
@@ -100,24 +104,20 @@ def _camera_path(data: dict[str, Any], source: Path) -> tuple[Cameras, float | N
 
 
 def _transforms(data: dict[str, Any], source: Path) -> tuple[Cameras, float | None]:
+    """The frames of a transforms file, read as the scene readers read theirs (no image needs to exist)."""
     frames = objects(data["frames"], "frames", source)
     if not frames:
         raise SceneError(f"{source}: 'frames' holds no camera")
     Ks, poses, sizes = [], [], set()
     for i, frame in enumerate(frames):
-        keys = {**data, **frame}
         if "transform_matrix" not in frame:
             raise SceneError(f"{source}: frames[{i}] has no 'transform_matrix'")
-        height, width = _size(keys, "h", "w", source)
-        sizes.add((height, width))
-        fx = _focal(keys, "x", width, i, source)
-        if fx is None:
-            raise SceneError(f"{source}: frames[{i}] has no focal length: give 'fl_x' or 'camera_angle_x'")
-        fy = _focal(keys, "y", height, i, source) or fx
-        cx = number(keys.get("cx", 0.5 * width), "cx", source)
-        cy = number(keys.get("cy", 0.5 * height), "cy", source)
-        Ks.append(intrinsics(fx, fy, cx, cy))
-        poses.append(_pose(frame["transform_matrix"], f"frames[{i}].transform_matrix", source, [(4, 4)]))
+        keys = FrameKeys(frame, data, i, source)
+        K, size = frame_intrinsics(keys, None)
+        _check_size(*size, source)
+        Ks.append(K)
+        sizes.add(size)
+        poses.append(_rigid(frame_pose(keys), f"frames[{i}].transform_matrix", source))
     if len(sizes) > 1:
         raise SceneError(f"{source}: the frames give {len(sizes)} image sizes; a path renders one size")
     (height, width), = sizes
@@ -129,29 +129,18 @@ def _size(keys: dict[str, Any], h_key: str, w_key: str, source: Path) -> tuple[i
         if key not in keys:
             raise SceneError(f"{source}: no '{key}' (the image size of the path's frames)")
     height, width = whole(keys[h_key], h_key, source), whole(keys[w_key], w_key, source)
-    if not (0 < height <= MAX_SIDE and 0 < width <= MAX_SIDE):
-        raise SceneError(f"{source}: an image of {width}x{height} px; width and height must lie in 1..{MAX_SIDE}")
+    _check_size(height, width, source)
     return height, width
 
 
-def _focal(keys: dict[str, Any], axis: str, size: int, index: int, source: Path) -> float | None:
-    """fl_<axis> in pixels, else the focal length of camera_angle_<axis> (radians) over ``size`` px, else None."""
-    if keys.get(f"fl_{axis}") is not None:
-        focal = number(keys[f"fl_{axis}"], f"fl_{axis}", source, low=0.0, unit=" (pixels)")
-    elif keys.get(f"camera_angle_{axis}") is not None:
-        angle = number(keys[f"camera_angle_{axis}"], f"camera_angle_{axis}", source, low=0.0, high=math.pi,
-                       unit=" (radians)")
-        focal = 0.5 * size / math.tan(0.5 * angle) if angle > 0 else 0.0
-    else:
-        return None
-    if not focal > 0.0:
-        raise SceneError(f"{source}: frames[{index}] has a zero focal length along {axis}")
-    return focal
+def _check_size(height: int, width: int, source: Path) -> None:
+    if not (height <= MAX_SIDE and width <= MAX_SIDE):
+        raise SceneError(f"{source}: an image of {width}x{height} px; width and height may be at most "
+                         f"{MAX_SIDE}")
 
 
-def _pose(value: Any, field: str, source: Path, shapes: list[tuple[int, ...]]) -> torch.Tensor:
-    """[4, 4] OpenCV camera-to-world of an OpenGL matrix in the file; refuses one that is not a rigid pose."""
-    c2w = torch.from_numpy(matrix(value, field, source, shapes).astype("float64").reshape(4, 4))
+def _rigid(c2w: torch.Tensor, field: str, source: Path) -> torch.Tensor:
+    """``c2w`` [4, 4] itself; refused where it is not a rigid camera pose."""
     rot = c2w[:3, :3]
     finite = bool(torch.isfinite(c2w).all())
     rigid = finite and float((rot.T @ rot - torch.eye(3, dtype=torch.float64)).abs().max()) <= RIGID_TOLERANCE \
@@ -160,4 +149,4 @@ def _pose(value: Any, field: str, source: Path, shapes: list[tuple[int, ...]]) -
     if not rigid:
         raise SceneError(f"{source}: {field} is not a rigid camera pose (its rotation is singular, scaled or "
                          "mirrored, a value is not finite, or its last row is not 0 0 0 1)")
-    return opengl_to_opencv(c2w[None])[0]
+    return c2w

@@ -63,7 +63,7 @@ def load_json(path: Path) -> dict[str, Any]:
 
 
 @dataclass(frozen=True)
-class _Keys:
+class FrameKeys:
     """One frame's keys, falling back to the file's top-level ones; every value is read through values.py."""
 
     frame: dict[str, Any]
@@ -87,7 +87,7 @@ class _Keys:
         return None if value is None else whole(value, self.field(key), self.source)
 
 
-def _image_path(root: Path, keys: _Keys, default_ext: str | None) -> Path:
+def _image_path(root: Path, keys: FrameKeys, default_ext: str | None) -> Path:
     if "file_path" not in keys.frame:
         raise SceneError(f"{keys.source}: frames[{keys.index}] has no 'file_path'")
     field = keys.field("file_path")
@@ -97,7 +97,7 @@ def _image_path(root: Path, keys: _Keys, default_ext: str | None) -> Path:
     return path
 
 
-def _focal(keys: _Keys, axis: str, size: int) -> float | None:
+def _focal(keys: FrameKeys, axis: str, size: int) -> float | None:
     """fl_<axis>, else the focal length of camera_angle_<axis> over ``size`` pixels, else None."""
     focal = keys.number(f"fl_{axis}", low=0.0, unit=" (pixels)")
     if focal is not None:
@@ -106,10 +106,13 @@ def _focal(keys: _Keys, axis: str, size: int) -> float | None:
     return None if angle is None else 0.5 * size / math.tan(0.5 * angle)
 
 
-def _intrinsics(keys: _Keys, path: Path) -> tuple[Tensor, tuple[int, int]]:
-    """K [3, 3] and the (height, width) it refers to, from keys (file size when w/h are absent)."""
+def frame_intrinsics(keys: FrameKeys, path: Path | None) -> tuple[Tensor, tuple[int, int]]:
+    """K [3, 3] and the (height, width) it refers to, from keys (the image ``path``'s size when w/h are absent;
+    None: no image to read, w/h are required)."""
     h, w = keys.whole("h"), keys.whole("w")
     if h is None or w is None:
+        if path is None:
+            raise SceneError(f"{keys.source}: frames[{keys.index}] gives no 'w'/'h' (the image size)")
         if not path.is_file():
             raise SceneError(f"{path}: image is missing and the transforms file gives no 'w'/'h'")
         h, w = image_size(path)
@@ -122,7 +125,7 @@ def _intrinsics(keys: _Keys, path: Path) -> tuple[Tensor, tuple[int, int]]:
     return intrinsics(fx, fy, cx, cy), (h, w)
 
 
-def _distortion(keys: _Keys) -> Distortion | None:
+def _distortion(keys: FrameKeys) -> Distortion | None:
     """The frame's distortion, None when all coefficients are zero; refuses models we cannot undistort exactly."""
     model = str(keys.raw("camera_model") or "OPENCV").upper()
     if model in ("EQUIRECTANGULAR", "OMNIDIRECTIONALSTEREO_L", "OMNIDIRECTIONALSTEREO_R"):
@@ -138,7 +141,8 @@ def _distortion(keys: _Keys) -> Distortion | None:
     return Distortion("fisheye" if model == "OPENCV_FISHEYE" else "opencv", coeffs)
 
 
-def _pose(keys: _Keys) -> Tensor:
+def frame_pose(keys: FrameKeys) -> Tensor:
+    """[4, 4] OpenCV camera-to-world of the frame's ``transform_matrix`` (OpenGL in the file)."""
     c2w_gl = matrix(keys.frame.get("transform_matrix"), f"frames[{keys.index}].transform_matrix", keys.source,
                     [(4, 4)])
     return opengl_to_opencv(torch.from_numpy(c2w_gl))
@@ -156,13 +160,13 @@ def read_frames(root: Path, sources: list[tuple[Path, dict[str, Any]]], default_
     paths, Ks, sizes, poses, bounds, depths, dists = [], [], [], [], [], [], []
     for source, meta in sources:
         for index, frame in enumerate(meta["frames"]):
-            keys = _Keys(frame, meta, index, source)
+            keys = FrameKeys(frame, meta, index, source)
             path = _image_path(root, keys, default_ext)
-            K, size = _intrinsics(keys, path)
+            K, size = frame_intrinsics(keys, path)
             paths.append(path)
             Ks.append(K)
             sizes.append(size)
-            poses.append(_pose(keys))
+            poses.append(frame_pose(keys))
             near, far = keys.number("near"), keys.number("far")
             bounds.append(None if near is None or far is None else (near, far))
             depth = frame.get("depth_file_path")

@@ -116,8 +116,6 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
         if not path_file.is_file():
             raise UserError(f"--path {path_file}: no such file, and not a path kind ({', '.join(PATH_KINDS)}); "
                             "give orbit, spiral, input or a camera path file")
-        if frames is not None:
-            raise UserError("--frames does not apply to --path FILE: the file gives every frame")
     config = RenderConfig(path=path_kind, path_file=path_file, frames=frames, fps=fps, resolution=resolution or None, views=views,
                           checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)),
                           chunk=chunk, exact=exact, sfm_depth=sfm_depth, overwrite=overwrite,
