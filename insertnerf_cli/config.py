@@ -77,6 +77,13 @@ class ModelConfig:
     # What a ray sees past its far bound: the reference views' colours where they see the ray's direction at
     # infinity, aggregated like any sample; ``background`` then only fills rays no view sees there.
     infinity_sample: bool = False
+    # --- backbone (docs/method.md, The NeRF++ backbone): "nerf" one field over [near, far]; "nerfpp" NeRF++'s
+    # foreground field inside a sphere about the world's origin (the subject, after scene normalisation) that holds
+    # the reference cameras, ``foreground_margin`` times as wide as the farthest of them, and a background field
+    # over inverted-sphere coordinates out to infinity, with ``samples_background`` samples per ray.
+    backbone: Literal["nerf", "nerfpp"] = "nerf"
+    samples_background: int = 16
+    foreground_margin: float = 1.1
     # --- loss weights (docs/method.md, Training)
     loss_backbone_weight: float = 0.1
     loss_dynamic_weight: float = 1.0
@@ -90,11 +97,14 @@ class ModelConfig:
             raise ValueError("feature_dims needs 3 scales and encoder_widths 4 levels")
         _at_least(self, 1, "encoder_widths", "feature_dims", "backbone_decoder_width", "aggregate_hidden",
                   "nerf_width", "nerf_layers", "appearance_width", "z_branches", "film_hidden", "filter_nodes",
-                  "samples_coarse", "samples_fine", "num_views")
+                  "samples_coarse", "samples_fine", "num_views", "samples_background")
         _at_least(self, 0, "pe_freqs_pos", "pe_freqs_dir", "loss_backbone_weight", "loss_dynamic_weight",
                   "loss_depth_weight", "loss_distortion_weight", "colour_prior_views",
                   "sample_views", "consistency_temperature_coarse", "consistency_temperature_fine")
         _at_least(self, 2, "consistency_views")
+        if self.foreground_margin < 1.0:
+            raise ValueError(f"foreground_margin must be at least 1 (the sphere holds the cameras), got "
+                             f"{self.foreground_margin}")
         if self.coord_scale <= 0 or not all(0.0 <= c <= 1.0 for c in self.background):
             raise ValueError(f"coord_scale must be positive and background colours in [0, 1], got "
                              f"coord_scale={self.coord_scale}, background={self.background}")

@@ -61,10 +61,10 @@ def make_scene(root: Path, splits: dict[str, int], layout: str = "object", scale
     return root
 
 
-def make_checkpoint(path: Path) -> Path:
-    """A checkpoint of the TINY network, initialised with seed 0."""
+def make_checkpoint(path: Path, **changes) -> Path:
+    """A checkpoint of the TINY network (with ``changes`` to its configuration), initialised with seed 0."""
     torch.manual_seed(0)
-    config = ModelConfig(**TINY)
+    config = ModelConfig(**{**TINY, **changes})
     return save_checkpoint(path, InsertNeRF(config), config)
 
 

@@ -100,3 +100,23 @@ def test_init_inside_the_run_folder_is_refused_before_overwrite_could_delete_it(
                                       "--steps", "1", "--device", "cpu"])
     assert result.exit_code == 1 and "--init checkpoint" in result.output
     assert inside.read_bytes() == before
+
+
+def test_a_nerfpp_background_starts_as_the_fine_head_reading_the_inverted_spheres_direction(tiny_checkpoint):
+    """A NeRF checkpoint into a NeRF++ model: the background head is a copy of the fine head, except that the
+    first layer's rows that read gamma(x, y, z) read gamma of the inverted sphere's direction, and those of its
+    inverse distance are zero (unread at first)."""
+    path, source = tiny_checkpoint
+    target = InsertNeRF(dataclasses.replace(TINY, backbone="nerfpp", samples_background=TINY.samples_fine))
+    warm_start(target, read_checkpoint(path))
+    theirs, ours = source.fine_head.state_dict(), target.background_head.state_dict()
+    rows = "conditioners.0.weights.features.weight"
+    blocks = 1 + 2 * TINY.pe_freqs_pos  # gamma: [c, sin(2^k c), cos(2^k c)], k-major
+    placed = ours[rows].reshape(blocks, 4, -1)
+    torch.testing.assert_close(placed[:, :3], theirs[rows].reshape(blocks, 3, -1))
+    assert not placed[:, 3].any()
+    bias = ours["conditioners.0.weights.features.bias"].reshape(blocks, 4)
+    torch.testing.assert_close(bias[:, :3], theirs["conditioners.0.weights.features.bias"].reshape(blocks, 3))
+    for name, value in theirs.items():
+        if name not in (rows, "conditioners.0.weights.features.bias"):
+            torch.testing.assert_close(ours[name], value)

@@ -11,11 +11,13 @@ from insertnerf_cli.model.compositing import Composite, composite, composite_wei
 from insertnerf_cli.model.consistency import colour_variance, sharpen
 from insertnerf_cli.model.encoder import UNetEncoder, pad_to_stride
 from insertnerf_cli.model.guide import guide_weights
+from insertnerf_cli.model.inverted_sphere import Sphere, background_samples, inverted_sphere
 from insertnerf_cli.model.losses import compute_losses
 from insertnerf_cli.model.nerf import NeRFHead
 from insertnerf_cli.model.projection import project_samples, projection_matrices, ray_angle
 from insertnerf_cli.model.sampling import RaySamples, importance_samples, stratified_samples
 from insertnerf_cli.model.types import EncodedViews, LossTerms, RenderOutput, SampleFeatures, SourceViews
+from insertnerf_cli.scenes.normalize import OBJECT_RADIUS
 
 # The infinity sample's depth in units of the ray's far bound (InsertNeRF.backdrop).
 _INFINITY_FACTOR = 1e4
@@ -38,6 +40,9 @@ class InsertNeRF(nn.Module):
         self.coarse_head = NeRFHead(cfg, cond_dims, cfg.samples_coarse)
         # Shared by default: on a CPU budget one head gets the gradients of both passes (see docs/model.md).
         self.fine_head = NeRFHead(cfg, cond_dims, cfg.samples_fine) if cfg.separate_fine_head else self.coarse_head
+        # NeRF++: the same conditioned field over the background's inverted-sphere coordinates.
+        self.background_head = NeRFHead(cfg, cond_dims, cfg.samples_background, position_dims=4) \
+            if cfg.backbone == "nerfpp" else None
         self.register_buffer("background", torch.tensor(cfg.background, dtype=torch.float32), persistent=False)
 
     def compile_aggregation(self) -> None:
@@ -70,7 +75,7 @@ class InsertNeRF(nn.Module):
         prior guides them (model.guide.guide_weights)."""
         cfg = self.config
         rays = rays.to(device=self.background.device, dtype=self.background.dtype)
-        backdrop = self.backdrop(encoded, rays)  # [R, 3] what the ray sees past its far bound
+        backdrop = self.backdrop(encoded, rays, train)  # [R, 3] what the ray sees past the foreground
         coarse_samples = stratified_samples(rays, cfg.samples_coarse, jitter=train,
                                             in_disparity=cfg.sample_in_disparity)
         coarse, dynamic_coarse = self.render_pass(self.coarse_head, encoded, rays, coarse_samples, backdrop,
@@ -83,18 +88,53 @@ class InsertNeRF(nn.Module):
         return RenderOutput(coarse=coarse, fine=fine, dynamic_coarse=dynamic_coarse, dynamic_fine=dynamic_fine,
                             coarse_samples=coarse_samples, fine_samples=fine_samples)
 
-    def backdrop(self, encoded: EncodedViews, rays: Rays) -> Tensor:
-        """[R, 3] the colour behind everything a ray's samples hold: with ``infinity_sample`` a sample at infinity
-        (the ray's direction, which every reference view sees at its vanishing point, aggregated like any
-        sample); else, and for rays no view sees there, the fixed background colour."""
+    def backdrop(self, encoded: EncodedViews, rays: Rays, train: bool = False) -> Tensor:
+        """[R, 3] the colour behind everything the foreground samples hold: with the NeRF++ backbone the background
+        field composited over what lies past it; past that, with ``infinity_sample`` a sample at infinity (the
+        ray's direction, which every reference view sees at its vanishing point, aggregated like any sample);
+        else, and for rays no view sees there, the fixed background colour."""
         fixed = self.background.to(rays.directions).expand(len(rays), 3)
-        if not self.config.infinity_sample:
+        if self.config.infinity_sample:
+            # Far enough that the projection is the vanishing point to well under a pixel, near enough for float32.
+            t = (rays.far * _INFINITY_FACTOR)[:, None]  # [R, 1]
+            seen = self.observe(encoded, rays, RaySamples(t, torch.cat([t, t], dim=-1)))
+            coverage = seen.dynamic.sum(dim=0)[0]  # [R]: 1 where some view sees the direction, else 0
+            fixed = seen.reference_colour()[:, 0] + (1.0 - coverage)[:, None] * fixed
+        if self.background_head is None:
             return fixed
-        # Far enough that the projection is the vanishing point to well under a pixel, near enough for float32.
-        t = (rays.far * _INFINITY_FACTOR)[:, None]  # [R, 1]
-        seen = self.observe(encoded, rays, RaySamples(t, torch.cat([t, t], dim=-1)))
-        coverage = seen.dynamic.sum(dim=0)[0]  # [R]: 1 where some view sees the direction, else 0
-        return seen.reference_colour()[:, 0] + (1.0 - coverage)[:, None] * fixed
+        return self.background_field(encoded, rays, fixed, train).rgb
+
+    def sphere(self, encoded: EncodedViews) -> Sphere:
+        """The foreground's sphere (NeRF++): about the world's origin, where scene normalisation puts an object
+        capture's subject and a forward capture's cameras; ``foreground_margin`` times as wide as the farthest
+        reference camera, and at least as wide as normalisation's camera orbit."""
+        centres = encoded.centers
+        reach = centres.norm(dim=-1).max().clamp_min(OBJECT_RADIUS)
+        return Sphere(centres.new_zeros(3), self.config.foreground_margin * reach)
+
+    def background_field(self, encoded: EncodedViews, rays: Rays, behind: Tensor, train: bool) -> Composite:
+        """NeRF++'s background: ``samples_background`` samples evenly in inverse distance from the sphere out to
+        (nearly) infinity, seen by the reference views like any sample, the conditioned field reading their
+        inverted-sphere coordinates, composited over ``behind`` [R, 3] with densities integrated over inverse
+        distance (NeRF++'s measure: a far bin counts as much as a near one)."""
+        sphere = self.sphere(encoded)
+        samples = background_samples(rays, sphere, self.config.samples_background, jitter=train)
+        t_edges = torch.cat([samples.t[:, :1], samples.t], dim=-1)  # projection reads only t
+        seen = self.observe(encoded, rays, RaySamples(samples.t, t_edges))
+        field = self.background_head(inverted_sphere(seen.points, sphere), rays.directions, seen.conds)
+        colour = field.colour
+        if self.config.blend_reference_colour:
+            colour = field.blend * colour + (1.0 - field.blend) * seen.reference_colour()
+        weights = composite_weights(field.density, -samples.edges, torch.ones_like(rays.near))
+        return composite(weights, colour, samples.t, behind)
+
+    def inside(self, encoded: EncodedViews, points: Tensor) -> Tensor | None:
+        """[R, S] 1 for the samples ``points`` [R, S, 3] inside the foreground's sphere, 0 outside (the background
+        field's), or None with the NeRF backbone (one field everywhere)."""
+        if self.background_head is None:
+            return None
+        sphere = self.sphere(encoded)
+        return ((points - sphere.centre).norm(dim=-1) <= sphere.radius).to(points)
 
     def render(self, encoded: EncodedViews, rays: Rays) -> Composite:
         """Inference: the fine composite of R rays, the same as ``forward(..., train=False).fine``."""
@@ -113,22 +153,26 @@ class InsertNeRF(nn.Module):
         coarse = self.observe(encoded, rays, samples, colour=False,
                               variance=bool(cfg.consistency_temperature_coarse))
         _, density = self.coarse_head.geometry(coarse.points, coarse.conds)
+        if (inside := self.inside(encoded, coarse.points)) is not None:
+            density = density * inside
         weights = composite_weights(density, samples.edges, rays.directions.norm(dim=-1))
         if cfg.consistency_temperature_coarse:
             weights = sharpen(weights, coarse.colour_variance, cfg.consistency_temperature_coarse)
         return samples, weights
 
     def render_fine(self, encoded: EncodedViews, rays: Rays, coarse_samples: RaySamples,
-                    weights: Tensor) -> Composite:
+                    weights: Tensor, backdrop: Tensor | None = None) -> Composite:
         """Inference: the fine composite of R rays whose fine samples follow ``weights`` [R, S_c] on
-        ``coarse_samples`` (their own coarse pass, or one borrowed from neighbouring pixels: render.py)."""
+        ``coarse_samples`` (their own coarse pass, or one borrowed from neighbouring pixels: render.py), over
+        ``backdrop`` [R, 3] (default: self.backdrop of the rays)."""
         cfg = self.config
         rays = rays.to(device=self.background.device, dtype=self.background.dtype)
         fine_samples = importance_samples(coarse_samples, weights, cfg.samples_fine, jitter=False,
                                           near=rays.near, far=rays.far)
         fine = self.observe(encoded, rays, fine_samples, variance=bool(cfg.consistency_temperature_fine))
-        return self.shade(self.fine_head, fine, rays, fine_samples, fine.reference_colour(),
-                          self.backdrop(encoded, rays), cfg.consistency_temperature_fine)
+        behind = self.backdrop(encoded, rays) if backdrop is None else backdrop
+        return self.shade(self.fine_head, fine, rays, fine_samples, fine.reference_colour(), behind,
+                          cfg.consistency_temperature_fine, self.inside(encoded, fine.points))
 
     def render_pass(self, head: NeRFHead, encoded: EncodedViews, rays: Rays, samples: RaySamples,
                     backdrop: Tensor, temperature: float = 0.0) -> tuple[Composite, Tensor]:
@@ -139,7 +183,8 @@ class InsertNeRF(nn.Module):
         """
         seen = self.observe(encoded, rays, samples, variance=bool(temperature))
         reference = seen.reference_colour()  # [R, S, 3]
-        main = self.shade(head, seen, rays, samples, reference, backdrop, temperature)
+        main = self.shade(head, seen, rays, samples, reference, backdrop, temperature,
+                          self.inside(encoded, seen.points))
         return main, composite(main.weights.detach(), reference, samples.t, backdrop).rgb
 
     def observe(self, encoded: EncodedViews, rays: Rays, samples: RaySamples, colour: bool = True,
@@ -172,14 +217,16 @@ class InsertNeRF(nn.Module):
                               dynamic=dynamic, colours=seen.blend_colours, colour_variance=cost)
 
     def shade(self, head: NeRFHead, seen: SampleFeatures, rays: Rays, samples: RaySamples,
-              reference: Tensor, backdrop: Tensor, temperature: float = 0.0) -> Composite:
+              reference: Tensor, backdrop: Tensor, temperature: float = 0.0, inside: Tensor | None = None) -> Composite:
         """The conditioned field at the samples, blended with the reference colour [R, S, 3], composited over
-        ``backdrop`` [R, 3]; with ``temperature`` > 0 the weights sharpened toward photo-consistent samples."""
+        ``backdrop`` [R, 3]; with ``temperature`` > 0 the weights sharpened toward photo-consistent samples; with
+        ``inside`` [R, S] the density kept only where it is 1 (NeRF++'s foreground)."""
         field = head(seen.points, rays.directions, seen.conds)
         colour = field.colour
         if self.config.blend_reference_colour:
             colour = field.blend * colour + (1.0 - field.blend) * reference  # [R, S, 3]
-        weights = composite_weights(field.density, samples.edges, rays.directions.norm(dim=-1))
+        density = field.density if inside is None else field.density * inside
+        weights = composite_weights(density, samples.edges, rays.directions.norm(dim=-1))
         if temperature:
             weights = sharpen(weights, seen.colour_variance, temperature)
         return composite(weights, colour, samples.t, backdrop)

@@ -72,12 +72,15 @@ class NeRFHead(nn.Module):
         cfg: model configuration (widths, depths, encodings, conditioning mode).
         cond_dims: widths of the aggregated descriptors per scale, coarse to fine.
         samples: S, samples per ray this head is used with (the HyperNet mixes along that axis).
+        position_dims: the coordinates of a sample it reads: 3 (world x, y, z, times cfg.coord_scale) or 4 (the
+            background's inverted-sphere coordinates, read as they are).
     """
 
-    def __init__(self, cfg: ModelConfig, cond_dims: Sequence[int], samples: int) -> None:
+    def __init__(self, cfg: ModelConfig, cond_dims: Sequence[int], samples: int, position_dims: int = 3) -> None:
         super().__init__()
         self.cfg = cfg
-        self.pos_enc = PositionalEncoding(3, cfg.pe_freqs_pos)
+        self.coord_scale = cfg.coord_scale if position_dims == 3 else 1.0
+        self.pos_enc = PositionalEncoding(position_dims, cfg.pe_freqs_pos)
         self.dir_enc = PositionalEncoding(3, cfg.pe_freqs_dir)
         self.layer_scale = [min(i, len(cond_dims) - 1) for i in range(cfg.nerf_layers)]
         in_dims = [self.pos_enc.out_dim] + [cfg.nerf_width] * (cfg.nerf_layers - 1)
@@ -92,14 +95,14 @@ class NeRFHead(nn.Module):
         self.colour = nn.Linear(cfg.appearance_width, 3 + 1)  # rgb logits and the reference-blend logit
 
     def forward(self, points: Tensor, directions: Tensor, conds: Sequence[Tensor]) -> FieldOutput:
-        """points [R, S, 3] world, directions [R, 3], conds per scale [R, S, D_l] -> FieldOutput."""
+        """points [R, S, position_dims], directions [R, 3], conds per scale [R, S, D_l] -> FieldOutput."""
         h, density = self.geometry(points, conds)
         colour, blend = self.appearance_of(h, directions, conds[-1])
         return FieldOutput(density=density, colour=colour, blend=blend)
 
     def geometry(self, points: Tensor, conds: Sequence[Tensor]) -> tuple[Tensor, Tensor]:
         """The density MLP alone: (geometry feature [R, S, W], density [R, S])."""
-        h = self.pos_enc(points * self.cfg.coord_scale)  # [R, S, P]
+        h = self.pos_enc(points * self.coord_scale)  # [R, S, P]
         for scale, conditioner, original in zip(self.layer_scale, self.conditioners, self.originals):
             h = original(conditioner(h, conds[scale]))  # [R, S, W]
         return h, self._activate(self.density(h)[..., 0])

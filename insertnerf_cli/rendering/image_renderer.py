@@ -156,16 +156,20 @@ def _render_with_shortcuts(model: InsertNeRF, encoded: EncodedViews, rays: Rays,
     weights = grid.blend(grid_weights)  # [R, S_c]
     live = grid.nearest_max(grid_weights.sum(dim=-1)) >= shortcuts.empty_opacity  # [R]
 
+    # What an empty pixel shows: what the reference views see at infinity, or the NeRF++ background field; the
+    # fine pass composites its pixels over the same.
+    backdrop = model.background.to(weights).expand(len(rays), 3)
+    if model.config.infinity_sample or model.config.backbone == "nerfpp":
+        backdrop = torch.cat(chunked(lambda i: model.backdrop(encoded, rays[i]), len(rays)))
+
     def fine(rows: Tensor) -> Callable[[Tensor], Composite]:
         def run(i: Tensor) -> Composite:
             return model.render_fine(encoded, rays[rows[i]], RaySamples(t.expand(len(i), -1),
-                                                                        edges.expand(len(i), -1)), weights[rows[i]])
+                                                                        edges.expand(len(i), -1)), weights[rows[i]],
+                                     backdrop[rows[i]])
         return run
 
     # [R, 5]: rgb, depth, opacity; what compositing gives a ray that sees nothing until a fine pass fills it
-    backdrop = model.background.to(weights).expand(len(rays), 3)
-    if model.config.infinity_sample:  # an empty pixel shows what the reference views see at infinity
-        backdrop = torch.cat(chunked(lambda i: model.backdrop(encoded, rays[i]), len(rays)))
     out = torch.cat([backdrop, t.mean().expand(len(rays), 1), weights.new_zeros(len(rays), 1)], dim=-1)
 
     def fill(rows: Tensor) -> None:

@@ -37,7 +37,9 @@ class WarmStart:
 def warm_start(model: nn.Module, checkpoint: Checkpoint) -> WarmStart:
     """Load ``checkpoint``'s weights into ``model``, resampling sample-axis tensors whose sample count differs.
 
-    A separate fine head missing from a shared-head checkpoint starts as a copy of its coarse head; a neutral
+    A separate fine head missing from a shared-head checkpoint starts as a copy of its coarse head, and a NeRF++
+    background head missing from a NeRF checkpoint as a copy of its fine head (_background_from_foreground); a
+    neutral
     addition (the visibility cue's zero weights) missing from it keeps its initial value. Any other
     difference (a width, a layer, a name) is a UserError: that is not the same network with other samples.
     """
@@ -46,6 +48,9 @@ def warm_start(model: nn.Module, checkpoint: Checkpoint) -> WarmStart:
     for name in own:
         if name.startswith("fine_head.") and name not in theirs:
             theirs[name] = theirs.get("coarse_head." + name.removeprefix("fine_head."))
+    for name in own:
+        if name.startswith("background_head.") and name not in theirs:
+            theirs[name] = _background_from_foreground(name, own[name], theirs, model)
     for name in own:
         if name.endswith(_NEUTRAL_ADDITIONS) and name not in theirs:
             theirs[name] = own[name]
@@ -63,6 +68,28 @@ def warm_start(model: nn.Module, checkpoint: Checkpoint) -> WarmStart:
         state[name] = source.to(target.dtype)
     model.load_state_dict(state)
     return WarmStart(copied=len(state) - resampled, resampled=resampled)
+
+
+# The first geometry layer's HyperNet makes one row of weights per input of the positional encoding.
+_READS_POSITION = ("conditioners.0.weights.features.weight", "conditioners.0.weights.features.bias")
+
+
+def _background_from_foreground(name: str, target: Tensor, theirs: dict[str, Tensor], model: nn.Module) -> Tensor | None:
+    """The fine head's tensor for the background head's ``name``: the rows that read the positional encoding of
+    x, y, z moved to those of the inverted sphere's first three coordinates (its direction), the inverse
+    distance's rows zero (unread at first); None where the fine head has no such tensor."""
+    source = theirs.get("fine_head." + name.removeprefix("background_head."), theirs.get(
+        "coarse_head." + name.removeprefix("background_head.")))
+    if source is None or not name.endswith(_READS_POSITION) or source.shape[0] == target.shape[0]:
+        return source
+    freqs = model.config.pe_freqs_pos
+    placed = torch.zeros((target.shape[0], *source.shape[1:]), dtype=source.dtype)
+    for position in range(source.shape[0]):  # gamma(x) = [x, sin(2^k x), cos(2^k x)], k-major, 3 -> 4 per k
+        block, dim = divmod(position, 3)
+        placed[block * 4 + dim] = source[position]
+    if placed.shape[0] != 4 * (1 + 2 * freqs):
+        raise UserError(f"--init: {name!r} does not read a {freqs}-frequency positional encoding")
+    return placed
 
 
 def _resample(name: str, source: Tensor, shape: torch.Size, checkpoint: Checkpoint) -> Tensor:
