@@ -5,7 +5,7 @@ import numpy as np
 import pycolmap
 import pytest
 
-from insertnerf_cli.sfm.epipolar import MAX_EPIPOLAR_ERROR, epipolar_matches, view_features
+from insertnerf_cli.sfm.epipolar import MAX_EPIPOLAR_ERROR, MAX_RATIO, ViewFeatures, epipolar_matches
 
 SIZE, FOCAL, POINTS = 400, 350.0, 60
 
@@ -44,8 +44,8 @@ def _scene(rng: np.random.Generator, distortion: list[float] | None = None):
     pose_a, pose_b = _pose(0.0), _pose(20.0)
     descriptors = _descriptors(POINTS, rng)
     order = rng.permutation(POINTS)  # b's keypoint k is point order[k]
-    a = view_features(camera, _project(camera, pose_a, xyz), descriptors, pose_a)
-    b = view_features(camera, _project(camera, pose_b, xyz)[order], descriptors[order], pose_b)
+    a = ViewFeatures.of_photo(camera, _project(camera, pose_a, xyz), descriptors, pose_a)
+    b = ViewFeatures.of_photo(camera, _project(camera, pose_b, xyz)[order], descriptors[order], pose_b)
     truth = np.stack([order, np.arange(POINTS)], axis=1)
     return a, b, truth[np.argsort(truth[:, 0])]
 
@@ -102,3 +102,60 @@ def _with_keypoint(b, ray: np.ndarray, copy_of: int):
 
     return type(b)(np.concatenate([b.rays, ray[None]]), torch.cat([b.descriptors, b.descriptors[copy_of:copy_of + 1]]),
                    b.cam_from_world, b.focal)
+
+
+def _brute_force(a, b) -> set[tuple[int, int]]:
+    """The matches by the definition, every keypoint pair tested: both residuals within the band, the ratio test
+    against every rival in the band, both ways, mutual."""
+    from insertnerf_cli.sfm.epipolar import MAX_DISTANCE, essential_matrix
+
+    e = essential_matrix(a, b)
+    lines_b, lines_a = a.rays @ e.T, b.rays @ e
+    residual = np.abs(lines_b @ b.rays.T)  # [Na, Nb]
+    near = (residual <= MAX_EPIPOLAR_ERROR * np.linalg.norm(lines_b[:, :2], axis=1)[:, None] / b.focal) & \
+        (residual <= MAX_EPIPOLAR_ERROR * np.linalg.norm(lines_a[:, :2], axis=1)[None, :] / a.focal)
+    angle = np.where(near, np.arccos(np.clip(a.descriptors.numpy() @ b.descriptors.numpy().T, -1, 1)), np.inf)
+
+    def best(table: np.ndarray) -> np.ndarray:
+        order = np.sort(table, axis=1)
+        pick = np.argmin(table, axis=1)
+        ok = (order[:, 0] <= 0.7) & (order[:, 0] < MAX_RATIO * order[:, 1]) & np.isfinite(order[:, 0])
+        return np.where(ok, pick, -1)
+
+    forward, backward = best(angle), best(angle.T)
+    return {(i, int(j)) for i, j in enumerate(forward) if j >= 0 and backward[j] == i}
+
+
+@pytest.mark.parametrize("motion", ["sideways", "forward", "diagonal"])
+def test_the_search_by_the_lines_angle_finds_exactly_the_matches_of_testing_every_pair(motion: str) -> None:
+    """The block search narrows the keypoints by the angle of their line through the epipole before any residual is
+    computed; with the epipole far off (sideways), inside the photo (forward) or in a corner, and many keypoints
+    near every line, it must find what testing every pair finds."""
+    rng = np.random.default_rng(7)
+    camera = _camera()
+    count = 1500
+    pose_a = np.concatenate([np.eye(3), np.zeros((3, 1))], axis=1)
+    step = {"sideways": [0.3, 0.0, 0.0], "forward": [0.0, 0.0, 0.4], "diagonal": [0.2, 0.15, 0.3]}[motion]
+    pose_b = np.concatenate([np.eye(3), -np.array(step)[:, None]], axis=1)
+    xyz = np.concatenate([rng.uniform(-2, 2, (count, 2)), rng.uniform(3, 8, (count, 1))], axis=1)
+    # Few kinds of descriptor, each a little perturbed (no exact ties): a keypoint has many look-alikes, so rivals
+    # inside the band decide most matches.
+    palette = _descriptors(12, rng).astype(float)
+
+    def described(count: int) -> np.ndarray:
+        return palette[rng.integers(0, 12, count)] + rng.uniform(0, 12, (count, 128))
+
+    kept_a = _inside(_project(camera, pose_a, xyz))
+    kept_b = _inside(_project(camera, pose_b, xyz))
+    a = ViewFeatures.of_photo(camera, _project(camera, pose_a, xyz)[kept_a], described(int(kept_a.sum())),
+                              pose_a)
+    jitter = rng.normal(0, 2.0, (int(kept_b.sum()), 2))
+    b = ViewFeatures.of_photo(camera, _project(camera, pose_b, xyz)[kept_b] + jitter,
+                              described(int(kept_b.sum())), pose_b)
+    found = {tuple(m) for m in epipolar_matches(a, b).tolist()}
+    assert found == _brute_force(a, b)
+    assert len(found) >= 10
+
+
+def _inside(pixels: np.ndarray) -> np.ndarray:
+    return np.all((pixels >= 0) & (pixels < SIZE), axis=1)

@@ -51,17 +51,18 @@ class ViewFeatures:
     cam_from_world: np.ndarray
     focal: float
 
-
-def view_features(camera, keypoints: np.ndarray, descriptors: np.ndarray, cam_from_world: np.ndarray) -> ViewFeatures:
-    """ViewFeatures of a pycolmap ``camera`` from its keypoints [N, >=2] (pixel x, y: COLMAP's convention, as the
-    camera reads them), uint8 SIFT ``descriptors`` [N, 128] and ``cam_from_world`` [3, 4]."""
-    xy = camera.cam_from_img(np.ascontiguousarray(keypoints[:, :2], dtype=np.float64)) if len(keypoints) else \
-        np.zeros((0, 2))
-    rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-    table = torch.from_numpy(np.asarray(descriptors, dtype=np.float32))
-    table = table / table.norm(dim=1, keepdim=True).clamp_min(1e-12)
-    focal = 0.5 * (camera.focal_length_x + camera.focal_length_y)
-    return ViewFeatures(rays, table, np.asarray(cam_from_world, dtype=np.float64), float(focal))
+    @staticmethod
+    def of_photo(camera, keypoints: np.ndarray, descriptors: np.ndarray, cam_from_world: np.ndarray) -> "ViewFeatures":
+        """The ViewFeatures of a pycolmap ``camera`` (the photo's own, lens distortion included) from its
+        ``keypoints`` [N, 2] (pixel x, y, COLMAP's convention, as the camera reads them), SIFT ``descriptors``
+        [N, 128] and ``cam_from_world`` [3, 4]."""
+        xy = camera.cam_from_img(np.ascontiguousarray(keypoints[:, :2], dtype=np.float64)) if len(keypoints) else \
+            np.zeros((0, 2))
+        rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+        table = torch.from_numpy(np.asarray(descriptors, dtype=np.float32))
+        table = table / table.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        focal = 0.5 * (camera.focal_length_x + camera.focal_length_y)
+        return ViewFeatures(rays, table, np.asarray(cam_from_world, dtype=np.float64), float(focal))
 
 
 def essential_matrix(a: ViewFeatures, b: ViewFeatures) -> np.ndarray:
@@ -86,7 +87,9 @@ def epipolar_matches(a: ViewFeatures, b: ViewFeatures, max_error: float = MAX_EP
     # |x_b . l_b| is both keypoints' residual; in pixels it is that over |l[:2]| times the view's focal length.
     band_b = max_error * lines_b[:, :2].norm(dim=1) / b.focal  # [Na] the residual allowed, measured in b
     band_a = max_error * lines_a[:, :2].norm(dim=1) / a.focal  # [Nb] measured in a
-    first, second, similarity = _pairs_in_band(lines_b, rays_b, band_b, band_a, a.descriptors, b.descriptors)
+    # The float32 residuals below may pass a hair over the float64 bound: the pencil's reach is a little wider.
+    first, second, similarity = _pairs_in_band(lines_b, rays_b, band_b, band_a, a.descriptors, b.descriptors,
+                                               _Pencil.about(epipole_in_b(a, b)), 1.001 * max_error / b.focal, b.rays)
     forward = _best_of(first, second, similarity, len(rays_a), max_ratio, max_distance)
     backward = _best_of(second, first, similarity, len(rays_b), max_ratio, max_distance)
     rows = torch.nonzero(forward >= 0).flatten()
@@ -94,20 +97,72 @@ def epipolar_matches(a: ViewFeatures, b: ViewFeatures, max_error: float = MAX_EP
     return torch.stack([mutual, forward[mutual]], dim=1).numpy().astype(np.int64)
 
 
+def epipole_in_b(a: ViewFeatures, b: ViewFeatures) -> np.ndarray:
+    """[3] the epipole in b (a's centre seen from b, as a ray; unit length): every line of a's keypoints passes
+    through it."""
+    rotation = b.cam_from_world[:, :3] @ a.cam_from_world[:, :3].T
+    translation = b.cam_from_world[:, 3] - rotation @ a.cam_from_world[:, 3]
+    return translation / np.linalg.norm(translation)
+
+
+@dataclass(frozen=True)
+class _Pencil:
+    """The lines through an epipole e as one angle: a line l (l . e = 0) has phi = atan2(l . u2, l . u1) mod pi for
+    an orthonormal u1, u2 perpendicular to e. A unit line at angle phi_x + d from the line through e and a ray x
+    leaves x a residual |sin d| |n . x| (n: the unit line at phi_x + pi/2), so a keypoint whose residual against
+    lines at angle distance d is within r needs |sin d| <= r / |n . x|: a test on two numbers per keypoint."""
+
+    u1: np.ndarray
+    u2: np.ndarray
+    epipole: np.ndarray
+
+    @staticmethod
+    def about(epipole: np.ndarray) -> "_Pencil":
+        helper = np.eye(3)[int(np.argmin(np.abs(epipole)))]
+        u1 = np.cross(epipole, helper)
+        u1 /= np.linalg.norm(u1)
+        return _Pencil(u1, np.cross(epipole, u1), epipole)
+
+    def angle(self, lines: np.ndarray) -> np.ndarray:
+        """[N] float64 each line's angle in [0, pi)."""
+        return np.remainder(np.arctan2(lines @ self.u2, lines @ self.u1), math.pi)
+
+    def reach(self, rays: np.ndarray, residual: float) -> tuple[np.ndarray, np.ndarray]:
+        """([N] angle of the line through each ray, [N] how far in angle a line may lie with the ray's residual
+        against it within ``residual`` (pi / 2: any line))."""
+        through = np.cross(self.epipole[None, :], rays)
+        phi = self.angle(through)
+        normal = -np.sin(phi)[:, None] * self.u1 + np.cos(phi)[:, None] * self.u2
+        lever = np.abs((rays * normal).sum(axis=1))
+        with np.errstate(divide="ignore"):
+            reach = np.arcsin(np.minimum(1.0, residual / lever))
+        return phi, reach
+
+
 def _pairs_in_band(lines: torch.Tensor, rays: torch.Tensor, band: torch.Tensor, other_band: torch.Tensor,
-                   descriptors: torch.Tensor, other: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                   descriptors: torch.Tensor, other: torch.Tensor, pencil: _Pencil, residual: float,
+                   rays64: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """([K], [K], [K]) every (a-keypoint, b-keypoint) whose residual against the a-keypoints' ``lines`` [Na, 3] in b
-    (b's keypoints along ``rays`` [Nb, 3]) is within both ``band`` [Na] and ``other_band`` [Nb] (a few per cent of
-    all pairs), and the cosine of the angle between their ``descriptors`` [Na, 128] and ``other`` [Nb, 128]."""
+    (b's keypoints along ``rays`` [Nb, 3]; ``rays64`` the same in float64) is within both ``band`` [Na] and
+    ``other_band`` [Nb] (a few per cent of all pairs), and the cosine of the angle between their ``descriptors``
+    [Na, 128] and ``other`` [Nb, 128]. ``pencil`` and ``residual`` (the widest band, in b's normalised units)
+    narrow each block of lines to the keypoints that can lie in its band before any residual is computed."""
     found_a, found_b, found = [], [], []
-    # Lines through one epipole in the order of their angle about it (with the epipole far off: of their offset).
-    order = torch.argsort(torch.atan2(lines[:, 1].double(), lines[:, 0].double()).remainder(math.pi))
+    phi_lines = pencil.angle(lines.double().numpy())
+    order = np.argsort(phi_lines, kind="stable")
+    phi_rays, reach = pencil.reach(rays64, residual)
     for start in range(0, len(lines), ROWS_PER_BLOCK):
-        rows = order[start:start + ROWS_PER_BLOCK]
-        residual = (lines[rows] @ rays.T).abs_()  # [n, Nb]
-        near = (residual <= band[rows, None]) & (residual <= other_band[None, :])
+        rows_np = order[start:start + ROWS_PER_BLOCK]
+        low, high = phi_lines[rows_np[0]], phi_lines[rows_np[-1]]  # sorted: the block spans [low, high]
+        outside = np.minimum(np.remainder(low - phi_rays, math.pi), np.remainder(phi_rays - high, math.pi))
+        inside = (phi_rays >= low) & (phi_rays <= high)
+        candidates = torch.from_numpy(np.flatnonzero(inside | (outside <= reach)))
+        rows = torch.from_numpy(rows_np)
+        residual_block = (lines[rows] @ rays[candidates].T).abs_()  # [n, C]
+        near = (residual_block <= band[rows, None]) & (residual_block <= other_band[None, candidates])
         columns = torch.nonzero(near.any(dim=0)).flatten()
         index_a, index_b = torch.nonzero(near[:, columns], as_tuple=True)
+        columns = candidates[columns]
         # A matrix product over the block's candidates beats a gather of descriptor rows per pair.
         found.append((descriptors[rows] @ other[columns].T)[index_a, index_b])
         found_a.append(rows[index_a])
