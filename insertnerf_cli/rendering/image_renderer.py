@@ -159,7 +159,16 @@ def _render_with_shortcuts(model: InsertNeRF, encoded: EncodedViews, rays: Rays,
     # What an empty pixel shows: what the reference views see at infinity, or the NeRF++ background field; the
     # fine pass composites its pixels over the same.
     backdrop = model.background.to(weights).expand(len(rays), 3)
-    if model.config.infinity_sample or model.config.backbone == "nerfpp":
+    if model.config.backbone == "nerfpp":  # like the fine pass: on a grid, blended where the grid agrees
+        behind = torch.zeros(len(rays), 5, dtype=weights.dtype, device=weights.device)
+
+        def fill_behind(rows: Tensor) -> None:
+            if len(rows):
+                behind[rows, :3] = torch.cat(chunked(lambda i: model.backdrop(encoded, rays[rows[i]]), len(rows)))
+
+        _fine_pass_by_levels(behind, torch.ones_like(live), size, shortcuts, edges[0, -1] - edges[0, 0], fill_behind)
+        backdrop = behind[:, :3]
+    elif model.config.infinity_sample:
         backdrop = torch.cat(chunked(lambda i: model.backdrop(encoded, rays[i]), len(rays)))
 
     def fine(rows: Tensor) -> Callable[[Tensor], Composite]:
