@@ -119,7 +119,7 @@ def _brute_force(a, b) -> set[tuple[int, int]]:
     def best(table: np.ndarray) -> np.ndarray:
         order = np.sort(table, axis=1)
         pick = np.argmin(table, axis=1)
-        ok = (order[:, 0] <= 0.7) & (order[:, 0] < MAX_RATIO * order[:, 1]) & np.isfinite(order[:, 0])
+        ok = (order[:, 0] <= MAX_DISTANCE) & (order[:, 0] < MAX_RATIO * order[:, 1]) & np.isfinite(order[:, 0])
         return np.where(ok, pick, -1)
 
     forward, backward = best(angle), best(angle.T)

@@ -15,10 +15,8 @@ from insertnerf_cli.model.inverted_sphere import (
     MIN_INVERSE_DISTANCE,
     Sphere,
     background_samples,
-    fit_sphere,
     from_inverted,
     inverted_sphere,
-    sphere_exit,
 )
 from insertnerf_cli.model.types import SourceViews
 from insertnerf_cli.scenes.normalize import OBJECT_RADIUS
@@ -49,13 +47,6 @@ def test_inverted_sphere_coordinates_invert_outside_the_sphere() -> None:
     torch.testing.assert_close(from_inverted(coords, SPHERE), points)
 
 
-def test_a_ray_from_the_centre_leaves_the_sphere_at_its_radius() -> None:
-    directions = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0], [3.0, 0.0, 4.0]], dtype=torch.float64)
-    rays = Rays(SPHERE.centre.expand(3, 3), directions, torch.zeros(3, dtype=torch.float64),
-                torch.ones(3, dtype=torch.float64))
-    torch.testing.assert_close(sphere_exit(rays, SPHERE), torch.tensor([3.0, 1.5, 0.6], dtype=torch.float64))
-
-
 def test_background_samples_lie_at_their_inverse_distance_out_to_nearly_infinity() -> None:
     torch.manual_seed(1)
     origins = SPHERE.centre + 0.5 * torch.randn(64, 3, dtype=torch.float64)  # inside the sphere
@@ -68,14 +59,6 @@ def test_background_samples_lie_at_their_inverse_distance_out_to_nearly_infinity
         distance = (samples.points(rays) - SPHERE.centre).norm(dim=-1)
         torch.testing.assert_close(distance, SPHERE.radius / samples.inverse)
         assert samples.edges[0, 0] == 1.0 and math.isclose(float(samples.edges[0, -1]), MIN_INVERSE_DISTANCE)
-
-
-def test_the_fitted_sphere_holds_every_camera_and_most_points() -> None:
-    cameras = ring_cameras(8, radius=2.0).centers.double()
-    points = torch.randn(1000, 3, dtype=torch.float64) * 0.5
-    sphere = fit_sphere(cameras, points)
-    assert bool(((cameras - sphere.centre).norm(dim=-1) < sphere.radius).all())
-    assert float(((points - sphere.centre).norm(dim=-1) < sphere.radius).double().mean()) >= 0.9
 
 
 def _solid_model(foreground_opaque: bool) -> InsertNeRF:

@@ -33,34 +33,6 @@ class Sphere:
         check_shape("centre", self.centre, (3,))
         check_shape("radius", self.radius, ())
 
-    def to(self, like: Tensor) -> "Sphere":
-        return Sphere(self.centre.to(like), self.radius.to(like))
-
-
-def fit_sphere(centres: Tensor, points: Tensor | None = None, margin: float = 1.1,
-               point_share: float = 0.9) -> Sphere:
-    """The sphere about the cameras' centres [V, 3] that holds them and ``point_share`` of the SfM ``points``
-    [P, 3] (the subject; the rest is background), ``margin`` times wider than the farthest of those.
-
-    Centred between the cameras: an orbit's centre is its subject, and a sphere that holds every camera is what
-    the split needs (a ray leaves the foreground exactly once)."""
-    centre = centres.mean(dim=0)
-    reach = (centres - centre).norm(dim=-1).max()
-    if points is not None and len(points):
-        reach = torch.maximum(reach, torch.quantile((points.to(centre) - centre).norm(dim=-1), point_share))
-    return Sphere(centre, (margin * reach).clamp_min(1e-6))
-
-
-def sphere_exit(rays: Rays, sphere: Sphere) -> Tensor:
-    """[R] the ray parameter t at which each ray leaves the sphere (its origin inside; an origin outside gets the
-    far crossing, or the nearest approach where the ray misses the sphere)."""
-    offset = rays.origins - sphere.centre  # [R, 3]
-    a = (rays.directions * rays.directions).sum(dim=-1)
-    b = (rays.directions * offset).sum(dim=-1)
-    c = (offset * offset).sum(dim=-1) - sphere.radius ** 2
-    root = (b * b - a * c).clamp_min(0.0).sqrt()
-    return (-b + root) / a
-
 
 def inverted_sphere(points: Tensor, sphere: Sphere) -> Tensor:
     """[..., 4] (x / q, 1 / q) of points [..., 3] at x = (p - c) / r, q = |x| (taken as at least 1: a point inside

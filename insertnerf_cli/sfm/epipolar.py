@@ -65,11 +65,15 @@ class ViewFeatures:
         return ViewFeatures(rays, table, np.asarray(cam_from_world, dtype=np.float64), float(focal))
 
 
+def _b_from_a(a: ViewFeatures, b: ViewFeatures) -> tuple[np.ndarray, np.ndarray]:
+    """([3, 3] rotation, [3] translation) of b's camera from a's."""
+    rotation = b.cam_from_world[:, :3] @ a.cam_from_world[:, :3].T
+    return rotation, b.cam_from_world[:, 3] - rotation @ a.cam_from_world[:, 3]
+
+
 def essential_matrix(a: ViewFeatures, b: ViewFeatures) -> np.ndarray:
     """[3, 3] E with rays_b^T E rays_a = 0 for a point seen by both views."""
-    rotation_a, rotation_b = a.cam_from_world[:, :3], b.cam_from_world[:, :3]
-    rotation = rotation_b @ rotation_a.T  # b from a
-    translation = b.cam_from_world[:, 3] - rotation @ a.cam_from_world[:, 3]
+    rotation, translation = _b_from_a(a, b)
     return skew(translation) @ rotation
 
 
@@ -100,8 +104,7 @@ def epipolar_matches(a: ViewFeatures, b: ViewFeatures, max_error: float = MAX_EP
 def epipole_in_b(a: ViewFeatures, b: ViewFeatures) -> np.ndarray:
     """[3] the epipole in b (a's centre seen from b, as a ray; unit length): every line of a's keypoints passes
     through it."""
-    rotation = b.cam_from_world[:, :3] @ a.cam_from_world[:, :3].T
-    translation = b.cam_from_world[:, 3] - rotation @ a.cam_from_world[:, 3]
+    _, translation = _b_from_a(a, b)
     return translation / np.linalg.norm(translation)
 
 

@@ -83,12 +83,12 @@ def _background_from_foreground(name: str, target: Tensor, theirs: dict[str, Ten
     if source is None or not name.endswith(_READS_POSITION) or source.shape[0] == target.shape[0]:
         return source
     freqs = model.config.pe_freqs_pos
+    if target.shape[0] != 4 * (1 + 2 * freqs) or source.shape[0] != 3 * (1 + 2 * freqs):
+        raise UserError(f"--init: {name!r} does not read a {freqs}-frequency positional encoding")
     placed = torch.zeros((target.shape[0], *source.shape[1:]), dtype=source.dtype)
     for position in range(source.shape[0]):  # gamma(x) = [x, sin(2^k x), cos(2^k x)], k-major, 3 -> 4 per k
         block, dim = divmod(position, 3)
         placed[block * 4 + dim] = source[position]
-    if placed.shape[0] != 4 * (1 + 2 * freqs):
-        raise UserError(f"--init: {name!r} does not read a {freqs}-frequency positional encoding")
     return placed
 
 
