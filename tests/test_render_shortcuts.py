@@ -131,6 +131,25 @@ def test_fine_levels_halve_down_to_every_pixel():
     assert fine_levels(6) == [6, 3, 1]  # each level's grid contains the one before
 
 
+def test_strides_scale_with_frames_larger_than_their_size_and_never_make_a_stride_of_one():
+    base = Shortcuts(coarse_stride=4, fine_stride=3, stride_size=256)
+    assert base.for_size(256) == base and base.for_size(100) == base  # as they are up to stride_size
+    at_512 = base.for_size(512)
+    assert (at_512.coarse_stride, at_512.fine_stride) == (8, 6) and at_512.smooth_rgb == base.smooth_rgb
+    assert (base.for_size(1008).coarse_stride, base.for_size(1008).fine_stride) == (16, 12)  # 3.94x, rounded
+    assert EXACT.for_size(2000) == EXACT  # the exact path stays exact at any size
+    assert Shortcuts(stride_size=0).for_size(2000) == Shortcuts(stride_size=0)  # 0: never scaled
+
+
+def test_a_frame_larger_than_the_stride_size_renders_as_with_the_scaled_strides():
+    model, encoded, camera = tiny_model_and_views(size=12)
+    scaled = render_image(model, encoded, camera, NEAR, FAR, shortcuts=Shortcuts(2, 0.0, fine_stride=2, stride_size=6))
+    given = render_image(model, encoded, camera, NEAR, FAR, shortcuts=Shortcuts(4, 0.0, fine_stride=4, stride_size=0))
+    halved = render_image(model, encoded, camera, NEAR, FAR, shortcuts=Shortcuts(2, 0.0, fine_stride=2, stride_size=0))
+    assert torch.equal(scaled.rgb, given.rgb) and torch.equal(scaled.depth, given.depth)
+    assert not torch.equal(scaled.rgb, halved.rgb)  # the strides made a difference to compare
+
+
 def test_shortcuts_refuse_nonsense():
     with pytest.raises(ValueError):
         Shortcuts(coarse_stride=0)
@@ -140,4 +159,6 @@ def test_shortcuts_refuse_nonsense():
         Shortcuts(fine_stride=0)
     with pytest.raises(ValueError):
         Shortcuts(smooth_rgb=-0.1)
+    with pytest.raises(ValueError):
+        Shortcuts(stride_size=-1)
     assert EXACT.exact and not Shortcuts().exact and not Shortcuts(1, 0.0, fine_stride=2).exact

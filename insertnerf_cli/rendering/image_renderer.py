@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Iterator, TypeVar
 
 import torch
@@ -38,9 +38,10 @@ class Shortcuts:
         coarse_stride: the coarse pass runs on every coarse_stride-th pixel of each row and column (and the last
             ones); every other pixel places its fine samples by the bilinear blend of the weights of its four
             nearest coarse rays. Neighbouring rays cross the same surfaces at nearly the same depth, and every ray
-            of a frame has the same coarse sample depths (one near/far), so the weights carry over. 1: exact. Each
-            step of the stride costs a few hundredths of a dB (docs/research-log.md, Colour lookups and render
-            shortcuts).
+            of a frame has the same coarse sample depths (one near/far), so the weights carry over. 1: exact. With
+            the SfM depth prior guiding the fine samples, 8 scored as well as 4 on the dev captures (room +0.13,
+            flower +0.01, mold_gold_cape +0.04 dB at 10 views) for a quarter of the coarse pass
+            (docs/research-log.md, Speed).
         empty_opacity: a pixel whose four nearest coarse rays all see less opacity than this shows background and
             gets no fine pass. 0: never skip.
         fine_stride: the fine pass runs first on every fine_stride-th pixel of each row and column (and the last
@@ -51,19 +52,36 @@ class Shortcuts:
         smooth_rgb: the four agree when each colour channel and the opacity differ by at most this between them.
         smooth_depth: ... and their depths by at most this fraction of the frame's depth range (far - near), so
             that a depth map is never blended across an edge that the colours do not show.
+        stride_size: the strides are those of a frame of this long side; a larger frame takes strides above 1
+            scaled by its long side over this (rounded), so that a grid step spans the same part of the picture:
+            at 512 px, 16 / 8 scored within 0.05 dB of 4 / 4 at 10 views (room -0.04, flower -0.05; at 3 views
+            +0.57 / +0.04) in 0.57x room's eval time, at 996 px +0.21 dB in 0.64x (docs/research-log.md, Speed).
+            Smaller frames keep them. 0: never scaled.
     """
 
-    coarse_stride: int = 4
+    coarse_stride: int = 8
     empty_opacity: float = 1e-3
     fine_stride: int = 4
     smooth_rgb: float = 0.03
     smooth_depth: float = 0.1
+    stride_size: int = 256
 
     def __post_init__(self) -> None:
         if (self.coarse_stride < 1 or self.fine_stride < 1 or not 0.0 <= self.empty_opacity < 1.0
-                or not 0.0 <= self.smooth_rgb <= 1.0 or not 0.0 <= self.smooth_depth <= 1.0):
-            raise ValueError(f"strides must be >= 1, empty_opacity in [0, 1) and the smooth_ bounds in [0, 1], "
-                             f"got {self}")
+                or not 0.0 <= self.smooth_rgb <= 1.0 or not 0.0 <= self.smooth_depth <= 1.0 or self.stride_size < 0):
+            raise ValueError(f"strides must be >= 1, empty_opacity in [0, 1), the smooth_ bounds in [0, 1] and "
+                             f"stride_size >= 0, got {self}")
+
+    def for_size(self, long_side: int) -> Shortcuts:
+        """These shortcuts with the strides of a frame whose long side is ``long_side`` px (stride_size)."""
+        if not self.stride_size or long_side <= self.stride_size:
+            return self
+        factor = long_side / self.stride_size
+
+        def scaled(stride: int) -> int:
+            return stride if stride == 1 else max(stride, round(stride * factor))
+
+        return replace(self, coarse_stride=scaled(self.coarse_stride), fine_stride=scaled(self.fine_stride))
 
     @property
     def exact(self) -> bool:
@@ -74,7 +92,7 @@ EXACT = Shortcuts(coarse_stride=1, empty_opacity=0.0, fine_stride=1)
 
 
 def render_image(model: InsertNeRF, encoded: EncodedViews, camera: Cameras, near: float | Tensor,
-                 far: float | Tensor, chunk: int = 128, shortcuts: Shortcuts = Shortcuts(),
+                 far: float | Tensor, chunk: int = 512, shortcuts: Shortcuts = Shortcuts(),
                  prior: Tensor | None = None, guide_options: GuideOptions = GuideOptions()) -> ImageOutput:
     """Render one full frame of ``camera`` (a Cameras of length 1) from the encoded reference views.
 
@@ -85,10 +103,11 @@ def render_image(model: InsertNeRF, encoded: EncodedViews, camera: Cameras, near
         encoded: model.encode(...) of the reference views, computed once per frame or per sequence.
         camera: the target camera (1), same device as the model.
         near, far: scalar depth bounds of the target view.
-        chunk: rays per network call. Small chunks keep each per-view tensor (chunk x samples x views x channels
-            floats) inside the CPU caches: with 10 views and 64 samples, 128 rays per call rendered 30% faster than
-            512 and 2x faster than 1024 (bench/model_speed.py); above glibc's 32 MB mmap threshold every
-            allocation also page-faults.
+        chunk: rays per network call. Each per-view tensor (chunk x samples x views x channels floats) should
+            stay inside the CPU caches, and each of a chunk's ~1,000 torch calls should carry enough rays to hide its
+            fixed cost: with 32 coarse and 16 fine samples and 8 views, 512 rays per call rendered a room frame
+            at 256 px in 0.83x the time of 128, and 1,024 or 2,048 no faster (docs/research-log.md, Speed); above
+            glibc's 32 MB mmap threshold every allocation also page-faults.
         shortcuts: the work skipped (Shortcuts); EXACT runs every ray's own coarse and fine pass.
         prior: [H, W] depth of the scene's SfM points in this view (depth_prior.prior_depth; NaN where none), or
             None: a share of each pixel's fine samples goes around it (model.guide.guide_weights under
@@ -143,6 +162,7 @@ def _render_with_shortcuts(model: InsertNeRF, encoded: EncodedViews, rays: Rays,
     coarse_stride-th pixel, fine samples placed by the blend of the nearest grid rays, empty pixels skipped, the
     fine pass on a grid of every fine_stride-th pixel and on the pixels between whose neighbours disagree."""
     device = rays.origins.device
+    shortcuts = shortcuts.for_size(max(size))
     grid = PixelGrid(*size, shortcuts.coarse_stride, device)
     grid_rays = rays[grid.index]
     passes = chunked(lambda i: model.coarse_weights(encoded, grid_rays[i]), len(grid_rays))

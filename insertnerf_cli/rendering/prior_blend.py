@@ -223,7 +223,9 @@ def smooth_fill(prior: Tensor, splatted: Tensor, options: BlendOptions = BlendOp
 
     def largest(values: Tensor) -> Tensor:  # [H, W] the largest of ``values`` on the splats in each window
         on_splats = torch.where(splats, values, -torch.inf)[None, None]  # [1, 1, H, W]
-        return F.max_pool2d(on_splats, window, stride=1, padding=window // 2)[0, 0]
+        # A square's maximum is the maximum over its rows of each row's: two 1-D pools cost 2 w per pixel, not w^2.
+        rows = F.max_pool2d(on_splats, (1, window), stride=1, padding=(0, window // 2))
+        return F.max_pool2d(rows, (window, 1), stride=1, padding=(window // 2, 0))[0, 0]
 
     nearest, farthest = -largest(-depth), largest(depth)
     filled = torch.isfinite(prior) & ~splats

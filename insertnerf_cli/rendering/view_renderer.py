@@ -22,9 +22,10 @@ from insertnerf_cli.scenes.views import nearest_views, view_rule
 from insertnerf_cli.sfm.depth_prior import covering_far, view_prior_splats, well_tracked
 from insertnerf_cli.sfm.occlusion_maps import occlusion, reference_map
 
-# Rays per network call by device. CPU: small chunks stay in cache (image_renderer.render_image). CUDA: a GPU needs
-# far more work per call; 4096 rays of 64+64 samples and 10 views hold about 1 GB of per-view tensors.
-DEFAULT_CHUNKS = {"cpu": 128, "cuda": 4096}
+# Rays per network call by device. CPU: chunks small enough to stay in cache, large enough that torch's per-op cost
+# is spread over many rays (image_renderer.render_image). CUDA: a GPU needs far more work per call; 4096 rays of
+# 64+64 samples and 10 views hold about 1 GB of per-view tensors.
+DEFAULT_CHUNKS = {"cpu": 512, "cuda": 4096}
 # Consecutive frames of a path mostly share their reference views: encodings are kept per view, for this many
 # times --views views, so a frame encodes only the views its predecessors did not use.
 ENCODED_VIEWS_KEPT = 2

@@ -36,7 +36,7 @@ def model_options(func: Callable[..., Any] | None = None, *, views_option: Calla
         click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                      help="Generator weights from `insertnerf train` or `finetune` instead of a bundled --model."),
         click.option("--chunk", type=click.IntRange(min=1),
-                     help="Rays per network call; lower it if memory runs out.  [default: 128 on CPU, 4096 on "
+                     help="Rays per network call; lower it if memory runs out.  [default: 512 on CPU, 4096 on "
                      "CUDA]"),
         click.option("--exact", is_flag=True,
                      help="Give every pixel its own coarse pass and a fine pass (slower). By default the coarse "
