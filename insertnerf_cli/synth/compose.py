@@ -2,7 +2,8 @@
 
 * object: a cluster of shapes of radius ~1 at the origin on a plain (white, black, coloured) or textured
   background, sometimes on a base plate (like NeRF-Synthetic).
-* 360: shapes standing on a ground in the middle of a room, an open sky or a street (like phone orbits).
+* 360: shapes standing on a ground in the middle of a room, an open sky or a street (like phone orbits); with
+  supports, on a plinth, a pedestal or a table instead (like a sculpture on its stand).
 * forward: shapes spread at many depths in front of a camera plane, with walls, buildings or sky behind
   (like LLFF captures).
 * handheld: a subject among clutter at many depths, with thin structures and occluders, captured either
@@ -14,9 +15,18 @@ import numpy as np
 
 from insertnerf_cli.synth import geometry
 from insertnerf_cli.synth.builder import Builder, cluster, identity, normalize
+from insertnerf_cli.synth.drawing import flat_texture
 from insertnerf_cli.synth.enclosures import enclose, scene_lights
 from insertnerf_cli.synth.geometry import THIN, Shape
-from insertnerf_cli.synth.world import Stage, World, random_material, random_rotation, random_shape, sun_light
+from insertnerf_cli.synth.world import (
+    Material,
+    Stage,
+    World,
+    random_material,
+    random_rotation,
+    random_shape,
+    sun_light,
+)
 
 # Half-size of the x-y box that object and 360 cameras (at distance ~2.5-5 from a radius-1 subject) need.
 _REACH = np.array([5.0, 5.0])
@@ -59,15 +69,58 @@ def compose_object(rng: np.random.Generator) -> World:
                    ambient=float(rng.uniform(0.15, 0.5)), layout="object", surroundings=kind, plate=on_plate)
 
 
-def compose_360(rng: np.random.Generator) -> World:
-    """Subjects of radius ~1 standing on a floor at the origin, inside a room or under a sky."""
+def compose_360(rng: np.random.Generator, supports: bool = False) -> World:
+    """Subjects of radius ~1 standing on a floor at the origin, inside a room or under a sky; with ``supports``,
+    standing on a plinth, a pedestal or a table whose foot is on the floor (support)."""
     b = Builder(rng)
     cluster(b, int(rng.integers(1, 6)), 0.0)
     floor = normalize(b, 1.0)
+    extra = {}
+    if supports:
+        floor, extra["support"] = support(b, floor)
     enclosure = enclose(b, rng, floor, -_REACH, _REACH)
     stage = Stage(np.zeros(3), 1.0, floor, enclosure.limit, ceiling=enclosure.ceiling)
     return b.world(scene_lights(rng, enclosure), stage, np.zeros(3),
-                   ambient=float(rng.uniform(0.15, 0.4)), layout="360", surroundings=enclosure.kind)
+                   ambient=float(rng.uniform(0.15, 0.4)), layout="360", surroundings=enclosure.kind, **extra)
+
+
+def support(b: Builder, top: float) -> tuple[float, str]:
+    """A support under the subject placed so far, its top at z = ``top``: a plinth (a box), a round pedestal or a
+    table (a top on four legs), 0.5-1.3 subject radii high; half of them plain white or light grey, like a
+    sculpture's stand, a surface SfM finds few points on. Returns the height of its foot (the floor) and its kind.
+    """
+    rng = b.rng
+    vertices = np.concatenate([o.world_vertices() for o in b.objects])
+    footprint = float(np.abs(vertices[:, :2]).max())  # the subject's half-width about the origin
+    height = float(rng.uniform(0.5, 1.3))
+    kind = str(rng.choice(["plinth", "pedestal", "table"]))
+    if rng.random() < 0.5:
+        material = b.material(Material(texture=flat_texture(np.full(3, rng.uniform(0.75, 0.95))), tile=1.0,
+                                       specular=float(rng.uniform(0.0, 0.1)), name="plain"))
+    else:
+        material = b.material(random_material(rng, glossy=False))
+
+    def block(extents: list[float], center: list[float], name: str) -> None:
+        b.add(Shape(geometry.trimesh_box(np.array(extents)), smooth=False, kind=name), identity(), np.array(center),
+              1.0, material=material)
+
+    if kind == "plinth":
+        half = footprint * float(rng.uniform(0.6, 1.1))
+        block([2 * half, 2 * half, height], [0.0, 0.0, top - height / 2], "support-plinth")
+    elif kind == "pedestal":
+        radius = footprint * float(rng.uniform(0.4, 0.8))
+        column = geometry.cylinder_mesh(radius, height)
+        b.add(Shape(column, smooth=True, kind="support-pedestal"), identity(), np.array([0.0, 0.0, top - height / 2]),
+              1.0, material=material)
+    else:
+        width, depth = footprint * float(rng.uniform(1.2, 1.8)), footprint * float(rng.uniform(0.9, 1.4))
+        slab, leg = 0.08 * height, 0.06 * footprint + 0.04
+        block([2 * width, 2 * depth, slab], [0.0, 0.0, top - slab / 2], "support-table")
+        for sx in (-1.0, 1.0):
+            for sy in (-1.0, 1.0):
+                block([leg, leg, height - slab],
+                      [sx * (width - leg), sy * (depth - leg), top - slab - (height - slab) / 2], "support-table-leg")
+    return top - height, kind
 
 
 def _spread(b: Builder, count: int, near: float, deep: float, floor: float) -> None:

@@ -29,7 +29,7 @@ from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.files.outdir import OutputRecord, check_output, foreign_entries, move_into, record_tree
 from insertnerf_cli.synth.capture import CaptureOptions
 from insertnerf_cli.synth.layouts import FOV_RANGE
-from insertnerf_cli.synth.scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, fov_json, render_scene
+from insertnerf_cli.synth.scene import LAYOUTS, RenderedScene, SceneSpec, draw_layout, defaults_left_out, render_scene
 
 # Bump when a change makes the same seed and options give other pixels.
 GENERATOR_VERSION = "synth-5"
@@ -57,6 +57,8 @@ class SynthOptions:
         aspects: aspect ratios (long / short) drawn per scene; (1.0,) gives square images.
         capture: sensor noise, exposure/white-balance jitter, JPEG compression (all off by default).
         fov: (lowest, highest) field of view of the long side, degrees, drawn uniformly per scene.
+        supports: the 360 layout's subjects stand on a support (a plinth, a pedestal or a table) instead of the
+            floor: the captures walked round an object on a stand that the generator finds hardest.
     """
 
     scenes: int = 10
@@ -68,6 +70,7 @@ class SynthOptions:
     aspects: tuple[float, ...] = (1.0, 4 / 3, 3 / 2, 16 / 9)
     capture: CaptureOptions = field(default_factory=CaptureOptions)
     fov: tuple[float, float] = FOV_RANGE
+    supports: bool = False
 
     def __post_init__(self) -> None:
         if self.scenes < 1 or self.views < 1:
@@ -87,14 +90,14 @@ class SynthOptions:
             raise UserError(f"--fov takes LOW:HIGH degrees with 1 <= LOW <= HIGH <= 170, got {low:g}:{high:g}")
 
     def to_json(self) -> dict:
-        return fov_json({**asdict(self), "aspects": list(self.aspects)}, self.fov)
+        return defaults_left_out({**asdict(self), "aspects": list(self.aspects)}, self.fov, self.supports)
 
     def spec(self, index: int) -> SceneSpec:
         """The spec of scene ``index``."""
         layout = draw_layout(self.seed, index) if self.layout == "mixed" else self.layout
         return SceneSpec(index=index, seed=self.seed, layout=layout, views=self.views, test_views=self.test_views,
                          resolution=self.resolution, aspects=tuple(self.aspects), capture=self.capture,
-                         fov=tuple(self.fov))
+                         fov=tuple(self.fov), supports=self.supports)
 
 
 @dataclass(frozen=True)

@@ -233,6 +233,11 @@ def trimesh_box(extents: np.ndarray) -> trimesh.Trimesh:
     return creation.box(extents=extents)
 
 
+def cylinder_mesh(radius: float, height: float, sections: int = 32) -> trimesh.Trimesh:
+    """An upright closed cylinder centred at the origin."""
+    return creation.cylinder(radius=radius, height=height, sections=sections)
+
+
 def ground_disc(radius: float, height: float, sections: int = 48, rings: int = 8) -> trimesh.Trimesh:
     """A disc facing +z at the given height, as concentric rings of quads with radii growing geometrically.
 

@@ -18,7 +18,7 @@ import numpy as np
 from insertnerf_cli.cameras.camera import Cameras
 from insertnerf_cli.scenes.writers import write_blender_transforms
 from insertnerf_cli.synth.capture import CaptureOptions, develop, draw_settings
-from insertnerf_cli.synth.compose import COMPOSERS
+from insertnerf_cli.synth.compose import COMPOSERS, compose_360
 from insertnerf_cli.synth.layouts import FOV_RANGE, RIGS, Frame, held_out_indices, random_frame
 from insertnerf_cli.synth.raycast import build_scene_mesh
 from insertnerf_cli.synth.render import auto_exposure, render_view
@@ -47,6 +47,8 @@ class SceneSpec:
         capture: capture effects switched on.
         fov: range of the long side's field of view, degrees (the default is left out of the JSON, so specs
             written before it existed read back the same).
+        supports: in the 360 layout, the subject stands on a support (compose.compose_360); left out of the JSON
+            when off, as ``fov``.
     """
 
     index: int
@@ -58,13 +60,15 @@ class SceneSpec:
     aspects: tuple[float, ...]
     capture: CaptureOptions
     fov: tuple[float, float] = FOV_RANGE
+    supports: bool = False
 
     @property
     def name(self) -> str:
         return f"scene_{self.index:05d}"
 
     def to_json(self) -> dict:
-        return fov_json({**asdict(self), "aspects": list(self.aspects), "name": self.name}, self.fov)
+        return defaults_left_out({**asdict(self), "aspects": list(self.aspects), "name": self.name}, self.fov,
+                                 self.supports)
 
     @staticmethod
     def from_json(data: dict) -> "SceneSpec":
@@ -73,12 +77,13 @@ class SceneSpec:
                             "capture": CaptureOptions(**fields["capture"])})
 
 
-def fov_json(fields: dict, fov: tuple[float, float]) -> dict:
-    """``fields`` with the field-of-view range as a list, or without it where it is the default: a dataset made
-    before the range could be chosen keeps its manifest, so a run of today's synth resumes it."""
-    if tuple(fov) == FOV_RANGE:
-        return {k: v for k, v in fields.items() if k != "fov"}
-    return {**fields, "fov": list(fov)}
+def defaults_left_out(fields: dict, fov: tuple[float, float], supports: bool = False) -> dict:
+    """``fields`` with the field-of-view range as a list, or without it where it is the default, and without
+    ``supports`` where it is off: a dataset made before these could be chosen keeps its manifest, so a run of
+    today's synth resumes it."""
+    left_out = ({"fov"} if tuple(fov) == FOV_RANGE else set()) | (set() if supports else {"supports"})
+    kept = {k: v for k, v in fields.items() if k not in left_out}
+    return kept if "fov" in left_out else {**kept, "fov": list(fov)}
 
 
 def stream(seed: int, index: int, *key: int) -> np.random.Generator:
@@ -104,7 +109,8 @@ class RenderedScene:
 
 def scene_world(spec: SceneSpec) -> World:
     """The world of a scene (before exposure)."""
-    return COMPOSERS[spec.layout](stream(spec.seed, spec.index, _WORLD))
+    rng = stream(spec.seed, spec.index, _WORLD)
+    return compose_360(rng, supports=True) if spec.supports and spec.layout == "360" else COMPOSERS[spec.layout](rng)
 
 
 def scene_cameras(spec: SceneSpec, world: World) -> tuple[Cameras, Frame]:

@@ -24,6 +24,9 @@ from insertnerf_cli.cli.commands.common import overwrite_option, user_errors
                    "for zoomed or telephoto captures.  [default: 35:75]")
 @click.option("--layout", type=click.Choice(["object", "forward", "360", "handheld", "mixed"]), default="mixed",
               show_default=True, help="Camera layout; mixed draws one of the four per scene.")
+@click.option("--supports/--no-supports", default=False, show_default=True,
+              help="360 scenes: the subject stands on a plinth, a pedestal or a table (often plain white) instead "
+                   "of the floor, as a sculpture on its stand.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Dataset seed: the same seed and options give byte-identical images.")
 @click.option("--workers", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,
