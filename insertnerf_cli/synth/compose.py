@@ -100,18 +100,18 @@ def support(b: Builder, top: float) -> tuple[float, str]:
     else:
         material = b.material(random_material(rng, glossy=False))
 
+    def place(mesh, center: list[float], name: str, smooth: bool = False) -> None:
+        b.add(Shape(mesh, smooth=smooth, kind=name), identity(), np.array(center), 1.0, material=material)
+
     def block(extents: list[float], center: list[float], name: str) -> None:
-        b.add(Shape(geometry.trimesh_box(np.array(extents)), smooth=False, kind=name), identity(), np.array(center),
-              1.0, material=material)
+        place(geometry.trimesh_box(np.array(extents)), center, name)
 
     if kind == "plinth":
         half = footprint * float(rng.uniform(0.6, 1.1))
         block([2 * half, 2 * half, height], [0.0, 0.0, top - height / 2], "support-plinth")
     elif kind == "pedestal":
         radius = footprint * float(rng.uniform(0.4, 0.8))
-        column = geometry.cylinder_mesh(radius, height)
-        b.add(Shape(column, smooth=True, kind="support-pedestal"), identity(), np.array([0.0, 0.0, top - height / 2]),
-              1.0, material=material)
+        place(geometry.cylinder_mesh(radius, height), [0.0, 0.0, top - height / 2], "support-pedestal", smooth=True)
     else:
         width, depth = footprint * float(rng.uniform(1.2, 1.8)), footprint * float(rng.uniform(0.9, 1.4))
         slab, leg = 0.08 * height, 0.06 * footprint + 0.04
