@@ -29,6 +29,7 @@ from insertnerf_cli.errors import UserError
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.poses.check import CheckLimits, PoseCheck, check_relative_poses
 from insertnerf_cli.poses.child import run_in_child
+from insertnerf_cli.poses.extraction import extract_sift
 from insertnerf_cli.poses.folder import OWNER, InputImages, check_output, read_inputs, staging_folder, write_scene
 from insertnerf_cli.poses.matching import match
 from insertnerf_cli.poses.reconstruction import (
@@ -337,17 +338,11 @@ def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads:
     """SIFT on every image; refuse images COLMAP's own decoder could not read (it skips them silently)."""
     stages.start("extracting SIFT features", f"{len(inputs.names)} images, long side capped at "
                  f"{options.max_image_size} px, {threads} threads")
-    db_path.parent.mkdir(parents=True, exist_ok=True)
     extraction = pycolmap.FeatureExtractionOptions(max_image_size=options.max_image_size, num_threads=threads)
-    reader = pycolmap.ImageReaderOptions(camera_model=options.camera_model)
-    run_in_child(lambda send: pycolmap.extract_features(db_path, inputs.folder, image_names=list(inputs.names),
-                                                        camera_mode=pycolmap.CameraMode.SINGLE,
-                                                        reader_options=reader, extraction_options=extraction,
-                                                        device=pycolmap.Device.cpu))
-    with pycolmap.Database.open(db_path) as db:
-        read = {image.name for image in db.read_all_images()}
-        stages.done(f"{db.num_keypoints()} keypoints in {db.num_images()} images")
-    missing = [inputs.original(name) for name in inputs.names if name not in read]
+    unread, keypoints = extract_sift(db_path, inputs.folder, inputs.names, pycolmap.CameraMode.SINGLE, extraction,
+                                     pycolmap.ImageReaderOptions(camera_model=options.camera_model))
+    stages.done(f"{keypoints} keypoints in {len(inputs.names) - len(unread)} images")
+    missing = [inputs.original(name) for name in unread]
     if missing:
         raise UserError(f"COLMAP could not decode {len(missing)} image(s): {', '.join(missing[:10])}"
                         f"{' ...' if len(missing) > 10 else ''}; convert them to JPEG or PNG.")

@@ -1,5 +1,5 @@
-"""SIFT keypoints of a posed scene's photos, for triangulate: COLMAP's SIFT on each photo shrunk to a fixed size,
-in a child process (Ctrl-C stops it at once), read back from its database.
+"""SIFT keypoints of a posed scene's photos, for triangulate: COLMAP's SIFT on each photo shrunk to a fixed size
+(poses/extraction.py: in a child process, so Ctrl-C stops it at once), read back from its database.
 
 OpenCV's SIFT found as many keypoints in a third of the time, but its points cost room 0.7 dB at 3 views against
 COLMAP's own (docs/research-log.md, Poses and triangulation), so extraction stays COLMAP's.
@@ -14,8 +14,8 @@ from typing import Sequence
 import numpy as np
 import pycolmap
 
-from insertnerf_cli.poses.child import run_in_child
 from insertnerf_cli.poses.estimate import pycolmap_log
+from insertnerf_cli.poses.extraction import extract_sift
 from insertnerf_cli.poses.folder import colmap_readable
 from insertnerf_cli.scenes.images import exif_orientation
 
@@ -68,14 +68,10 @@ def photo_features(paths: Sequence[Path], root: Path, options: FeatureOptions = 
                                                        num_threads=options.num_threads)
         extraction.sift.peak_threshold = options.peak_threshold
         extraction.sift.max_num_features = options.max_features
-        run_in_child(lambda send: pycolmap.extract_features(database, folder, image_names=names,
-                                                            camera_mode=pycolmap.CameraMode.PER_IMAGE,
-                                                            extraction_options=extraction,
-                                                            device=pycolmap.Device.cpu))
+        missing, _ = extract_sift(database, folder, names, pycolmap.CameraMode.PER_IMAGE, extraction)
+        if missing:
+            raise RuntimeError(f"COLMAP read no features from {len(missing)} images (first: {missing[0]})")
         with pycolmap.Database.open(database) as db:
             ids = {image.name: image.image_id for image in db.read_all_images()}
-            missing = [name for name in names if name not in ids]
-            if missing:
-                raise RuntimeError(f"COLMAP read no features from {len(missing)} images (first: {missing[0]})")
             return [PhotoFeatures(np.asarray(db.read_keypoints(ids[name])[:, :2], dtype=np.float64),
                                   np.asarray(db.read_descriptors(ids[name]).data)) for name in names]
