@@ -11,6 +11,10 @@
 # round 15; guide: train --guide-prior, round 20; narrow: train on the set plus half as many scenes again seen through
 # 20-35-degree lenses, `synth --fov 20:35`, around mold_gold_cape's 26.7-degree lens, round 27; its control is the
 # same spec without it). Score with bench/fov_probe.py --checkpoint W beside the dev captures.
+# FASTPP in place of FAST: the fast generator warm-started into the NeRF++ backbone (examples/fast-nerfpp-model.json,
+# issue 63). supports in place of narrow: the mix plus a quarter as many scenes again of 360 orbits around subjects on a
+# plinth, pedestal or table (`synth --supports`), the analogue of the captures walked round an object; its control
+# is the same spec without it (CPU probe at 45 minutes: docs/research-log.md, The NeRF++ backbone).
 # MORE=M (a second call on the still-warm machine): resume every run of the first call for M more minutes, pack again.
 # .whl holds trimesh, embreex and pycolmap for the GPU machine's Python (synth needs the first two; the CLI imports
 # pycolmap on the way to `train` since finetune's SfM prior, a28cd39; 52 MB of the 64 MiB carry; docs/training-on-gpu.md).
@@ -21,9 +25,11 @@ W=/tmp/g27
 RUN_SPECS=${RUN_SPECS:-A_fast3e4:FAST:3e-4:0 B_full3e4:FULL:3e-4:0 C_fast1e4:FAST:1e-4:0}
 RUNS=$(for r in $RUN_SPECS; do echo -n "${r%%:*} "; done)
 case " $RUN_SPECS" in *:narrow\ *|*:narrow) NARROW=1 ;; *) NARROW= ;; esac
+case " $RUN_SPECS" in *:supports\ *|*:supports) SUPPORTS=1 ;; *) SUPPORTS= ;; esac
+case " $RUN_SPECS" in *:FASTPP:*) SMOKE="FAST FULL FASTPP" ;; *) SMOKE="FAST FULL" ;; esac
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 PY=${PY:-python3}
-ins() { $PY -c "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli import main; main()" "$@"; }
+ins() { $PY -c "import sys; sys.argv[0] = 'insertnerf'; from insertnerf_cli.cli.main import main; main()" "$@"; }
 trainer() {  # `ins train ARGS`, or through the transient probe when run $1 has a share (file $W/$1.share)
   local share; share=$(cat $W/$1.share 2>/dev/null); shift
   if [ -n "$share" ]; then $PY bench/transient_train.py --transient-share $share "$@"; else ins train "$@"; fi; }
@@ -36,6 +42,7 @@ pack() { for r in $RUNS; do
 done; ls -la $OUT; el "end"; }
 FAST="--init insertnerf_cli/weights/insertnerf-fast.pt --model-config examples/fast-prior-model.json"
 FULL="--init insertnerf_cli/weights/insertnerf.pt --model-config examples/full-prior-model.json"
+FASTPP="--init insertnerf_cli/weights/insertnerf-fast.pt --model-config examples/fast-nerfpp-model.json"
 COMMON="--device $DEV --rays ${RAYS:-4096} --batch-scenes ${BATCH:-8} --data-budget-mb 30000"
 if [ -n "${MORE:-}" ]; then  # the first call's runs go on from their last.pt, for MORE minutes more each
   for r in $RUNS; do
@@ -61,12 +68,16 @@ n() { $PY -c "print(max(2, round($1 * $SCALE)))"; }
   ins synth $W/n5h --scenes $(n 35) --views 30 --test-views 4 --resolution 200 --fov 20:35 --layout handheld --seed $(( 273 + ${SEED_SHIFT:-0} )) --workers 4 --photo > $W/syn10.log 2>&1 &
   ins synth $W/n5f --scenes $(n 35) --views 24 --test-views 3 --resolution 200 --fov 20:35 --layout forward --seed $(( 274 + ${SEED_SHIFT:-0} )) --workers 4 --noise --jitter > $W/syn11.log 2>&1 &
  fi
+ if [ -n "$SUPPORTS" ]; then  # orbits around subjects on supports (issue 63), after the mix for the same reason
+  wait
+  ins synth $W/p5r --scenes $(n 70) --views 24 --test-views 3 --resolution 200 --layout 360 --supports --photo --seed $(( 631 + ${SEED_SHIFT:-0} )) --workers 16 > $W/syn12.log 2>&1
+ fi
  wait
 ) &
 SYN=$!
 ins synth $W/smoke --scenes 10 --views 12 --test-views 2 --resolution 120 --layout 360 --seed 7 --workers 2 > $W/smoke_syn.log 2>&1 \
   || { el "smoke synth failed"; tail -5 $W/smoke_syn.log; kill $SYN; exit 1; }
-for m in FAST FULL; do  # fail fast, with time left to mend and rerun, if the CUDA path breaks
+for m in $SMOKE; do  # fail fast, with time left to mend and rerun, if the CUDA path breaks
   ins train $W/smoke --out $W/smoke_$m ${!m} $COMMON --guide-prior --seed 0 --batch-scenes 2 --steps 4 --val-every 2 --ckpt-every 2 > $W/smoke_$m.log 2>&1 \
     || { el "smoke $m failed"; tr '\r' '\n' < $W/smoke_$m.log | tail -25; kill $SYN; pkill -f "synth $W"; exit 1; }
   el "smoke $m ok: $(tr '\r' '\n' < $W/smoke_$m.log | grep -v '^\s*$' | tail -1)"
@@ -79,11 +90,16 @@ if [ -n "$NARROW" ]; then  # the mix's scenes and the long-lens ones
   for d in $W/n5?; do for s in $d/scene_*; do ln -s $s $W/mixn/$(basename $d)_$(basename $s); done; done
   el "mixn: $(ls $W/mixn | wc -l) scenes"
 fi
+if [ -n "$SUPPORTS" ]; then  # the mix's scenes and the orbits on supports
+  mkdir -p $W/mixs; cp -P $W/mix/* $W/mixs/
+  for s in $W/p5r/scene_*; do ln -s $s $W/mixs/p5r_$(basename $s); done
+  el "mixs: $(ls $W/mixs | wc -l) scenes"
+fi
 if [ "$MIN" = auto ]; then MIN=$($PY -c "print(round(max(1.0, (${END_AT:-525} - $(( $(date +%s) - T0 )) - 30) / 60), 2))"); fi
 el "training minutes: $MIN"
 for spec in $RUN_SPECS; do
   IFS=: read -r name model lr seed share guide data <<< "$spec"; echo $MIN > $W/$name.minutes; echo "${share:-}" > $W/$name.share
-  [ "${data:-}" = narrow ] && echo mixn > $W/$name.data || echo mix > $W/$name.data
+  case "${data:-}" in narrow) echo mixn ;; supports) echo mixs ;; *) echo mix ;; esac > $W/$name.data
   trainer $name $W/$(cat $W/$name.data) --out $W/$name ${!model} $COMMON ${guide:+--guide-prior} --seed $seed --lr $lr --steps 200000 --minutes $MIN --val-every 100000 --ckpt-every 250 > $W/$name.log 2>&1 &
 done
 sleep 60; nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader 2>/dev/null
