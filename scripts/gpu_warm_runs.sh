@@ -83,18 +83,13 @@ for m in $SMOKE; do  # fail fast, with time left to mend and rerun, if the CUDA 
   el "smoke $m ok: $(tr '\r' '\n' < $W/smoke_$m.log | grep -v '^\s*$' | tail -1)"
 done
 wait $SYN; el "synth done: $(cat $W/syn*.log | grep -ci error) error lines"; for f in $W/syn*.log; do tail -1 $f; done
-mkdir -p $W/mix; for d in $W/s4? $W/s5?; do for s in $d/scene_*; do ln -s $s $W/mix/$(basename $d)_$(basename $s); done; done
-el "mix: $(ls $W/mix | wc -l) scenes"
-if [ -n "$NARROW" ]; then  # the mix's scenes and the long-lens ones
-  mkdir -p $W/mixn; cp -P $W/mix/* $W/mixn/
-  for d in $W/n5?; do for s in $d/scene_*; do ln -s $s $W/mixn/$(basename $d)_$(basename $s); done; done
-  el "mixn: $(ls $W/mixn | wc -l) scenes"
-fi
-if [ -n "$SUPPORTS" ]; then  # the mix's scenes and the orbits on supports
-  mkdir -p $W/mixs; cp -P $W/mix/* $W/mixs/
-  for s in $W/p5r/scene_*; do ln -s $s $W/mixs/p5r_$(basename $s); done
-  el "mixs: $(ls $W/mixs | wc -l) scenes"
-fi
+link_sets() {  # link_sets NAME SET...: a folder of links to the scenes of every SET, named SET_scene
+  mkdir -p $W/$1; local to=$W/$1; shift
+  for d in "$@"; do for s in $d/scene_*; do ln -s $s $to/$(basename $d)_$(basename $s); done; done
+  el "$(basename $to): $(ls $to | wc -l) scenes"; }
+link_sets mix $W/s4? $W/s5?
+if [ -n "$NARROW" ]; then link_sets mixn $W/s4? $W/s5? $W/n5?; fi  # the mix's scenes and the long-lens ones
+if [ -n "$SUPPORTS" ]; then link_sets mixs $W/s4? $W/s5? $W/p5r; fi  # the mix's scenes and the orbits on supports
 if [ "$MIN" = auto ]; then MIN=$($PY -c "print(round(max(1.0, (${END_AT:-525} - $(( $(date +%s) - T0 )) - 30) / 60), 2))"); fi
 el "training minutes: $MIN"
 for spec in $RUN_SPECS; do
