@@ -21,6 +21,10 @@ T = TypeVar("T")
 DEFAULT_RESOLUTION = 256
 DEFAULT_VIEWS = 10
 
+# The generator's structures of space (ModelConfig.backbone): one NeRF field, or NeRF++'s foreground and background.
+Backbone = Literal["nerf", "nerfpp"]
+BACKBONES: tuple[str, ...] = typing.get_args(Backbone)
+
 
 @dataclass(frozen=True)
 class ModelConfig:
@@ -81,7 +85,7 @@ class ModelConfig:
     # foreground field inside a sphere about the world's origin (the subject, after scene normalisation) that holds
     # the reference cameras, ``foreground_margin`` times as wide as the farthest of them, and a background field
     # over inverted-sphere coordinates out to infinity, with ``samples_background`` samples per ray.
-    backbone: Literal["nerf", "nerfpp"] = "nerf"
+    backbone: Backbone = "nerf"
     samples_background: int = 16
     foreground_margin: float = 1.1
     # --- loss weights (docs/method.md, Training)

@@ -2,6 +2,7 @@
 import pytest
 import torch
 
+from insertnerf_cli.errors import UserError
 from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model
 from insertnerf_cli.rendering.image_renderer import render_image
 from model_fixtures import FAR, NEAR, orbit_cameras, sphere_views
@@ -39,3 +40,13 @@ def test_bundled_fast_model_is_the_default_and_takes_fewer_samples_than_full(one
     size = 24
     out = render_image(model, model.encode(sphere_views(3, size)), orbit_cameras(1, size, phase=0.4), NEAR, FAR)
     assert torch.isfinite(out.rgb).all() and ((out.depth >= NEAR - 1e-4) & (out.depth <= FAR + 1e-4)).all()
+
+
+def test_the_bundled_nerfpp_generator_has_that_backbone_and_only_fast_has_one():
+    path = bundled_checkpoint("fast", "nerfpp")
+    assert path.stat().st_size <= MAX_BYTES and path != bundled_checkpoint()
+    _, config = load_model(path, torch.device("cpu"))
+    assert config.backbone == "nerfpp" and config.samples_background > 0
+    assert load_model(bundled_checkpoint(), torch.device("cpu"))[1].backbone == "nerf"
+    with pytest.raises(UserError, match="no bundled full generator has the nerfpp backbone"):
+        bundled_checkpoint("full", "nerfpp")

@@ -125,6 +125,15 @@ def test_two_step_finetune_writes_weights_that_render_and_eval_load(tmp_path, ba
 
 
 @pytest.mark.slow
+def test_backbone_nerfpp_finetunes_the_bundled_nerfpp_generator(tmp_path):
+    scene = make_scene(tmp_path / "scene", {"train": 6, "test": 2})
+    out = tmp_path / "ft.pt"
+    result = run("finetune", scene, "--out", out, "--backbone", "nerfpp", *TINY_RUN, "--steps", 1)
+    assert result.exit_code == 0, result.output
+    assert load_model(out, torch.device("cpu"))[1].backbone == "nerfpp"
+
+
+@pytest.mark.slow
 def test_train_encoder_changes_the_encoder_too(tmp_path, base):
     scene = make_scene(tmp_path / "scene", {"train": 6})
     assert _finetune(scene, base, tmp_path / "ft.pt", "--steps", 2, "--train-encoder").exit_code == 0

@@ -225,6 +225,24 @@ def test_model_renders_with_bundled_weights_and_excludes_checkpoint(scene_and_ch
 
 
 @pytest.mark.slow
+def test_backbone_picks_the_bundled_nerfpp_generator_and_must_match_a_checkpoint(scene_and_checkpoint, tmp_path):
+    scene, ckpt = scene_and_checkpoint
+    out = tmp_path / "nerfpp"
+    result = run("render", scene, "--out", out, "--backbone", "nerfpp", "--device", "cpu", "--resolution", 16,
+                 "--views", 2, "--frames", 1)
+    assert result.exit_code == 0, result.output
+    state = json.loads((out / STATE_FILE).read_text())
+    assert state["checkpoint_sha256"] == checkpoint_sha256(bundled_checkpoint("fast", "nerfpp"))
+    # The test checkpoint has the NeRF backbone: asking for the other one beside it is refused before any work.
+    other = render_command(scene, ckpt, tmp_path / "other", "--backbone", "nerfpp")
+    assert other.exit_code == 1 and "not --backbone nerfpp" in other.output
+    assert len(other.output.strip().splitlines()) == 1 and not (tmp_path / "other").exists()
+    assert render_command(scene, ckpt, tmp_path / "same", "--backbone", "nerf", "--frames", 1).exit_code == 0
+    full = run("render", scene, "--out", tmp_path / "full", "--model", "full", "--backbone", "nerfpp")
+    assert full.exit_code == 1 and "no bundled full generator" in full.output
+
+
+@pytest.mark.slow
 def test_exact_and_default_renders_are_separate_runs(scene_and_checkpoint, tmp_path):
     # --exact changes the frames, so a re-run with it must re-render instead of resuming the other run's frames.
     scene, ckpt = scene_and_checkpoint

@@ -28,6 +28,11 @@ CHECKPOINT_VERSION = 1
 # default: 2.5x faster than full and as good on real captures and procedural scenes (docs/benchmarks.md).
 BUNDLED_MODELS = {"fast": "insertnerf-fast.pt", "full": "insertnerf.pt"}
 DEFAULT_MODEL = "fast"
+# The bundled generators of the NeRF++ backbone (ModelConfig.backbone "nerfpp": a foreground field inside a sphere
+# and an inverted-sphere background field), by the same --model names. The NeRF backbone stays the default
+# everywhere: the NeRF++ one does not yet score higher on 360-degree captures (docs/model-card.md).
+BUNDLED_NERFPP_MODELS = {"fast": "insertnerf-fast-nerfpp.pt"}
+DEFAULT_BACKBONE = "nerf"
 
 
 @dataclass(frozen=True)
@@ -159,9 +164,15 @@ def load_model(path: str | Path, device: torch.device) -> tuple[nn.Module, Model
     return model, checkpoint.model_config
 
 
-def bundled_checkpoint(model: str = DEFAULT_MODEL) -> Path:
-    """A pretrained generator shipped in the package: "fast" (32+16 samples, the default) or "full" (64+64)."""
-    path = BUNDLED_WEIGHTS_DIR / BUNDLED_MODELS[model]
+def bundled_checkpoint(model: str = DEFAULT_MODEL, backbone: str = DEFAULT_BACKBONE) -> Path:
+    """A pretrained generator shipped in the package: "fast" (32+16 samples, the default) or "full" (64+64), of
+    the NeRF backbone (the default) or the NeRF++ one."""
+    files = BUNDLED_NERFPP_MODELS if backbone == "nerfpp" else BUNDLED_MODELS
+    if model not in files:
+        raise UserError(f"no bundled {model} generator has the {backbone} backbone (bundled with it: "
+                        f"{', '.join(sorted(files))}); pass --model {sorted(files)[0]}, or a --checkpoint trained "
+                        f"with backbone {backbone} in its model config.")
+    path = BUNDLED_WEIGHTS_DIR / files[model]
     if not path.is_file():
         raise UserError(f"this install has no bundled {model} weights ({path} is missing); pass "
                         "--checkpoint RUN_DIR/checkpoints/last.pt from `insertnerf train`.")

@@ -65,7 +65,8 @@ def _table(run: EvalRun) -> list[str]:
 @overwrite_option
 @user_errors
 def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, max_views: int | None,
-                 views: tuple[int, ...], resolution: int, model: str, checkpoint: Path | None, chunk: int,
+                 views: tuple[int, ...], resolution: int, model: str, checkpoint: Path | None,
+                 backbone: str | None, chunk: int,
                  exact: bool, sfm_depth: bool, device: str, overwrite: bool) -> None:
     """Score novel-view quality on SCENE_DIR: render each held-out view (the test split, else every 8th view)
     from its nearest other views and compare it with the photo.
@@ -76,7 +77,7 @@ def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, 
       insertnerf eval scene/ --views 3,6,10,16      # how the score changes with the number of views
     """
     config = EvalConfig(views=views[0] if len(views) == 1 else views, resolution=resolution or None,
-                        checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)),
+                        checkpoint=chosen_weights(model, checkpoint, backbone), device=str(resolve_device(device)),
                         chunk=chunk, exact=exact, sfm_depth=sfm_depth, out_dir=out_dir, json_path=json_path,
                         max_views=max_views, overwrite=overwrite)
     run = run_eval(scene_dir, config)

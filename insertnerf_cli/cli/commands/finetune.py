@@ -6,6 +6,7 @@ from pathlib import Path
 import click
 
 from insertnerf_cli.cli.commands.common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
+from insertnerf_cli.cli.commands.render import backbone_option, chosen_weights
 from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from insertnerf_cli.finetune import FinetuneConfig, FinetuneResult, finetune
 
@@ -24,6 +25,7 @@ _DEFAULTS = FinetuneConfig()
 @click.option("--steps", type=click.IntRange(min=1), help="Stop after this many steps (the first budget reached wins).")
 @click.option("--checkpoint", "base", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Weights to start from (default: the bundled pretrained generator).")
+@backbone_option
 @click.option("--resolution", type=click.IntRange(min=0), default=DEFAULT_RESOLUTION, show_default=True,
               help="Long side of the photos in pixels, as render/eval's --resolution (use the same); 0 = full size.")
 @click.option("--views", type=click.IntRange(min=1), default=DEFAULT_VIEWS, show_default=True,
@@ -42,8 +44,8 @@ _DEFAULTS = FinetuneConfig()
 @overwrite_option
 @user_errors
 def finetune_command(scene_dir: Path, out: Path, minutes: float | None, steps: int | None, base: Path | None,
-                     resolution: int, views: int, rays: int, lr: float, train_encoder: bool, seed: int,
-                     sfm_depth: bool, device: str, overwrite: bool) -> None:
+                     backbone: str | None, resolution: int, views: int, rays: int, lr: float, train_encoder: bool,
+                     seed: int, sfm_depth: bool, device: str, overwrite: bool) -> None:
     """Fine-tune the generator on SCENE_DIR's own photos and write the weights to --out.
 
     Each step renders pixels of one photo from its nearest other photos and corrects the network, as training
@@ -61,7 +63,8 @@ def finetune_command(scene_dir: Path, out: Path, minutes: float | None, steps: i
     config = FinetuneConfig(minutes=minutes, steps=steps, rays=rays, lr=lr, train_encoder=train_encoder,
                             lr_encoder=lr, views=views, resolution=resolution or None, seed=seed,
                             sfm_depth=sfm_depth)
-    result = finetune(scene_dir, out, config, resolve_device(device), base=base, overwrite=overwrite)
+    result = finetune(scene_dir, out, config, resolve_device(device), base=chosen_weights(None, base, backbone),
+                      overwrite=overwrite)
     interrupted = result.stopped == "interrupted"
     # One line, with what to do next after a Ctrl-C: the triangulation's and Ctrl-C's lines come before it.
     hint = (f". Use it with render or eval --checkpoint {out}; to go on, pass it as --checkpoint to another finetune "

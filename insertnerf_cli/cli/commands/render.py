@@ -8,19 +8,28 @@ from typing import Any, Callable
 import click
 
 from insertnerf_cli.cli.commands.common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
-from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
+from insertnerf_cli.config import BACKBONES, DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.exporters.outputs import DEFAULT_DEPTH_FORMAT, DEPTH_FORMATS
 from insertnerf_cli.exporters.pointcloud import DEFAULT_POINTS
 from insertnerf_cli.exporters.records import DEFAULT_FPS, RenderConfig
-from insertnerf_cli.model.checkpoint import BUNDLED_MODELS, DEFAULT_MODEL, bundled_checkpoint
+from insertnerf_cli.model.checkpoint import (BUNDLED_MODELS, DEFAULT_BACKBONE, DEFAULT_MODEL, bundled_checkpoint,
+                                             read_checkpoint)
 from insertnerf_cli.pipelines.render import render_scene
 from insertnerf_cli.rendering.camera_paths import PATH_KINDS
 
 
+backbone_option = click.option(
+    "--backbone", type=click.Choice(BACKBONES),
+    help="Structure of space of the bundled generator: nerf, one field from near to far; nerfpp, NeRF++'s "
+    "foreground field inside a sphere around the subject and cameras and a background field out to infinity "
+    "(docs/method.md; not yet better on 360-degree captures, docs/model-card.md). With --checkpoint it must match "
+    f"the checkpoint's.  [default: {DEFAULT_BACKBONE}]")
+
+
 def model_options(func: Callable[..., Any] | None = None, *, views_option: Callable | None = None) -> Any:
-    """--views, --resolution, --model, --checkpoint, --chunk, --exact, --sfm-depth: shared by render and eval
-    (eval passes its own --views, which takes a list)."""
+    """--views, --resolution, --model, --checkpoint, --backbone, --chunk, --exact, --sfm-depth: shared by render
+    and eval (eval passes its own --views, which takes a list)."""
     if func is None:
         return functools.partial(model_options, views_option=views_option)
     options = [
@@ -35,6 +44,7 @@ def model_options(func: Callable[..., Any] | None = None, *, views_option: Calla
                      f"[default: {DEFAULT_MODEL}]"),
         click.option("--checkpoint", type=click.Path(exists=True, dir_okay=False, path_type=Path),
                      help="Generator weights from `insertnerf train` or `finetune` instead of a bundled --model."),
+        backbone_option,
         click.option("--chunk", type=click.IntRange(min=1),
                      help="Rays per network call; lower it if memory runs out.  [default: 512 on CPU, 4096 on "
                      "CUDA]"),
@@ -57,13 +67,20 @@ def model_options(func: Callable[..., Any] | None = None, *, views_option: Calla
     return func
 
 
-def chosen_weights(model: str | None, checkpoint: Path | None) -> Path | None:
-    """The --checkpoint, else None for the default bundled generator, else the bundled --model's file."""
+def chosen_weights(model: str | None, checkpoint: Path | None, backbone: str | None = None) -> Path | None:
+    """The --checkpoint (whose backbone must be --backbone's when both are given), else None for the default bundled
+    generator, else the bundled file of --model and --backbone."""
     if checkpoint is not None:
         if model is not None:
             raise UserError(f"--model {model} and --checkpoint {checkpoint} both name weights: pass one of them.")
+        theirs = read_checkpoint(checkpoint).model_config.backbone if backbone is not None else None
+        if theirs != backbone:
+            raise UserError(f"{checkpoint} holds a generator of the {theirs} backbone, not --backbone {backbone}: "
+                            "drop --backbone, or pass a checkpoint trained with that backbone.")
         return checkpoint
-    return None if model in (None, DEFAULT_MODEL) else bundled_checkpoint(model)
+    if model in (None, DEFAULT_MODEL) and backbone in (None, DEFAULT_BACKBONE):
+        return None
+    return bundled_checkpoint(model or DEFAULT_MODEL, backbone or DEFAULT_BACKBONE)
 
 
 @click.command("render")
@@ -97,9 +114,9 @@ def chosen_weights(model: str | None, checkpoint: Path | None) -> Path | None:
 @overwrite_option
 @user_errors
 def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float | None, views: int,
-           resolution: int, model: str, checkpoint: Path | None, chunk: int, exact: bool, sfm_depth: bool,
-           device: str, overwrite: bool, finetune_minutes: float | None, depth_format: str, pointcloud: bool,
-           pointcloud_points: int) -> None:
+           resolution: int, model: str, checkpoint: Path | None, backbone: str | None, chunk: int, exact: bool,
+           sfm_depth: bool, device: str, overwrite: bool, finetune_minutes: float | None, depth_format: str,
+           pointcloud: bool, pointcloud_points: int) -> None:
     """Render novel views of SCENE_DIR into --out: frames, depth maps, videos and cameras.
 
     SCENE_DIR is a scene in any supported format, or a plain folder of photos, or a COLMAP project whose images/
@@ -117,7 +134,7 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
             raise UserError(f"--path {path_file}: no such file, and not a path kind ({', '.join(PATH_KINDS)}); "
                             "give orbit, spiral, input or a camera path file")
     config = RenderConfig(path=path_kind, path_file=path_file, frames=frames, fps=fps, resolution=resolution or None, views=views,
-                          checkpoint=chosen_weights(model, checkpoint), device=str(resolve_device(device)),
+                          checkpoint=chosen_weights(model, checkpoint, backbone), device=str(resolve_device(device)),
                           chunk=chunk, exact=exact, sfm_depth=sfm_depth, overwrite=overwrite,
                           finetune_minutes=finetune_minutes,
                           depth_format=depth_format, pointcloud_points=pointcloud_points if pointcloud else None)
