@@ -10,7 +10,7 @@ import torch
 
 from insertnerf_cli.cameras.camera import Cameras, intrinsics
 from insertnerf_cli.model.guide import GuideOptions, guide_weights
-from insertnerf_cli.sfm.depth_prior import (PriorOptions, covering_far, prior_depth,
+from insertnerf_cli.sfm.depth_prior import (_DIRECTIONS, PriorOptions, _min_along, covering_far, prior_depth,
                                         view_prior, view_prior_splats)
 from insertnerf_cli.model.sampling import RaySamples, importance_samples
 from insertnerf_cli.scenes import load_scene, normalize_scene
@@ -47,6 +47,33 @@ def test_the_nearest_point_wins_and_far_from_any_point_there_is_none() -> None:
     assert math.isnan(float(depth[0, 0]))  # the corner is farther than the reach from the one splat
     behind = prior_depth(torch.tensor([[0.0, 0.0, -2.0]], dtype=torch.float64), camera_at_origin())
     assert torch.isnan(behind).all()  # points behind the camera give nothing
+
+
+def test_a_far_wall_seen_between_the_sparse_points_of_a_nearer_surface_is_left_out() -> None:
+    near = plane_points(2.0, step=0.05)  # a point every 2 px: discs of 1 px leave gaps between them
+    near = near[(near[:, 0].abs() <= 0.3 * 2.0) & (near[:, 1].abs() <= 0.2 * 2.0)]  # the frame's middle only
+    wall = plane_points(6.0)  # dense, behind it and all round it
+    points = torch.cat([near, wall])
+    inside = (slice(H // 2 - 6, H // 2 + 6), slice(W // 2 - 10, W // 2 + 10))
+    kept = prior_depth(points, camera_at_origin(), PriorOptions(enclosed_directions=9))  # 9: never dropped
+    assert float(kept[inside].max()) == pytest.approx(6.0)  # the wall shows through the gaps
+    depth = prior_depth(points, camera_at_origin())
+    torch.testing.assert_close(depth[inside], torch.full_like(depth[inside], 2.0))
+    # Beside the surface the wall is all there is, and the wall's pixels next to its edge stay the wall's.
+    torch.testing.assert_close(depth[:, :W // 2 - 14], torch.full_like(depth[:, :W // 2 - 14], 6.0))
+    assert float(depth[H // 2, W // 2 - 14]) == pytest.approx(6.0)
+
+
+def test_the_minimum_along_a_direction_is_the_brute_force_one() -> None:
+    torch.manual_seed(0)
+    values = torch.rand(20, 30)
+    for reach in (1, 2, 3, 6, 8, 11):
+        padded = torch.nn.functional.pad(values[None, None], (reach,) * 4, value=math.inf)[0, 0]
+        for dy, dx in _DIRECTIONS:
+            got = _min_along(padded, dy, dx, reach)[reach:reach + 20, reach:reach + 30]
+            expected = torch.stack([padded[reach + dy * k:reach + dy * k + 20, reach + dx * k:reach + dx * k + 30]
+                                    for k in range(1, reach + 1)]).amin(dim=0)
+            assert torch.equal(got, expected), (reach, dy, dx)
 
 
 def test_guide_weights_moves_a_share_toward_the_prior_and_keeps_the_total() -> None:
