@@ -1,10 +1,11 @@
 """The SfM depth prior: the scene's structure-from-motion points as a depth per pixel of a frame.
 
 A scene posed by COLMAP or `insertnerf poses` knows where its textured surfaces are. Its points, projected into a
-frame and splatted with a z-buffer (the nearest point wins), then carried a few pixels into the empty pixels around
-them, give a depth at most pixels. The renderer guides its fine samples to it (model/guide.py), the blend at the
-prior tests the references there (rendering/prior_blend.py), and each reference's own points make its occlusion map
-(sfm/occlusion_maps.py). Measured: docs/research-log.md, Sampling and the SfM depth prior.
+frame and splatted with a z-buffer (the nearest point wins), less the splats a nearer surface encloses, then carried
+a few pixels into the empty pixels around them, give a depth at most pixels. The renderer guides its fine samples
+to it (model/guide.py), the blend at the prior tests the references there (rendering/prior_blend.py), and each
+reference's own points make its occlusion map (sfm/occlusion_maps.py). Measured: docs/research-log.md, Sampling
+and the SfM depth prior.
 """
 from __future__ import annotations
 
@@ -151,16 +152,18 @@ def drop_enclosed(depth: Tensor, reach: int, directions: int, margin: float) -> 
 
     A glossy or plain surface carries few SfM points, and between their discs the points of what lies behind it
     show through: the prior there says "far", the fine samples and the blend at the prior follow it, and the
-    frame shows flecks of the background on the subject (docs/research-log.md, The NeRF++ backbone). Such a splat
+    frame shows flecks of the background on the subject (docs/research-log.md, Sampling and the SfM depth prior).
+    Such a splat
     has the nearer surface all round it; one beside a silhouette has it on one side only and stays.
     """
     height, width = depth.shape
-    # float32 holds a 15 % test; it halves the time of the shifted minima against float64.
-    padded = torch.nn.functional.pad(depth.float()[None, None], (reach, reach, reach, reach), value=math.inf)[0, 0]
+    # float32 is ample for a relative test of some percent and halves the time of the shifted minima.
+    single = depth.float()
+    padded = torch.nn.functional.pad(single[None, None], (reach, reach, reach, reach), value=math.inf)[0, 0]
     nearer = torch.zeros(depth.shape, dtype=torch.int64)
     for dy, dx in _DIRECTIONS:
         nearest = _min_along(padded, dy, dx, reach)[reach:reach + height, reach:reach + width]
-        nearer += (nearest * (1.0 + margin) < depth.float()).long()
+        nearer += (nearest * (1.0 + margin) < single).long()
     return torch.where(torch.isfinite(depth) & (nearer >= directions), math.inf, depth)
 
 
