@@ -32,6 +32,7 @@ DEFAULT_MODEL = "fast"
 # and an inverted-sphere background field), by the same --model names. The NeRF backbone stays the default
 # everywhere: the NeRF++ one does not yet score higher on 360-degree captures (docs/model-card.md).
 BUNDLED_NERFPP_MODELS = {"fast": "insertnerf-fast-nerfpp.pt"}
+BUNDLED_BY_BACKBONE = {"nerf": BUNDLED_MODELS, "nerfpp": BUNDLED_NERFPP_MODELS}
 DEFAULT_BACKBONE = "nerf"
 
 
@@ -167,7 +168,7 @@ def load_model(path: str | Path, device: torch.device) -> tuple[nn.Module, Model
 def bundled_checkpoint(model: str = DEFAULT_MODEL, backbone: str = DEFAULT_BACKBONE) -> Path:
     """A pretrained generator shipped in the package: "fast" (32+16 samples, the default) or "full" (64+64), of
     the NeRF backbone (the default) or the NeRF++ one."""
-    files = BUNDLED_NERFPP_MODELS if backbone == "nerfpp" else BUNDLED_MODELS
+    files = BUNDLED_BY_BACKBONE[backbone]
     if model not in files:
         raise UserError(f"no bundled {model} generator has the {backbone} backbone (bundled with it: "
                         f"{', '.join(sorted(files))}); pass --model {sorted(files)[0]}, or a --checkpoint trained "

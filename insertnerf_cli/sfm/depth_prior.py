@@ -153,8 +153,7 @@ def drop_enclosed(depth: Tensor, reach: int, directions: int, margin: float) -> 
     A glossy or plain surface carries few SfM points, and between their discs the points of what lies behind it
     show through: the prior there says "far", the fine samples and the blend at the prior follow it, and the
     frame shows flecks of the background on the subject (docs/research-log.md, Sampling and the SfM depth prior).
-    Such a splat
-    has the nearer surface all round it; one beside a silhouette has it on one side only and stays.
+    Such a splat has the nearer surface all round it; one beside a silhouette has it on one side only and stays.
     """
     height, width = depth.shape
     # float32 is ample for a relative test of some percent and halves the time of the shifted minima.
