@@ -8,7 +8,7 @@ from typing import Any
 import click
 
 from insertnerf_cli.cli.commands.common import device_option, overwrite_option, resolve_device, user_errors
-from insertnerf_cli.cli.commands.render import chosen_weights, model_options
+from insertnerf_cli.cli.commands.weights import chosen_weights, model_options
 from insertnerf_cli.config import DEFAULT_VIEWS
 from insertnerf_cli.exporters.records import EvalConfig, EvalRun
 from insertnerf_cli.pipelines.evaluate import run_eval

@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 
 from insertnerf_cli.cli.commands.common import FiniteFloat, device_option, overwrite_option, resolve_device, user_errors
-from insertnerf_cli.cli.commands.render import backbone_option, chosen_weights
+from insertnerf_cli.cli.commands.weights import backbone_option, chosen_weights
 from insertnerf_cli.config import DEFAULT_RESOLUTION, DEFAULT_VIEWS
 from insertnerf_cli.finetune import FinetuneConfig, FinetuneResult, finetune
 
