@@ -88,3 +88,15 @@ def test_ctrl_c_during_renders_triangulation_exits_130_at_once(photos, tmp_path)
     code, took, err = _run_until(args, "triangulating", 0.3, signal.SIGINT)
     assert code == 130 and took < LIMIT_S, (code, took, err[-500:])
     assert "Traceback" not in err and "image pairs" not in err  # stopped inside the triangulation, not after it
+
+
+def test_ctrl_c_while_a_finished_command_shuts_down_prints_no_traceback():
+    """A Ctrl-C that lands after the command's body (here from an exit handler, as the interpreter shuts down)
+    leaves the command's exit code and prints nothing."""
+    late = ("import atexit, os, signal, time; "
+            "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(0.2))); ")
+    done = subprocess.run([sys.executable, "-c", late + MAIN, "--version"], capture_output=True, text=True,
+                          timeout=60, preexec_fn=_ctrl_c_as_in_a_terminal)
+    assert done.returncode == 0, done.stderr
+    assert "insertnerf" in done.stdout
+    assert "Traceback" not in done.stderr and "KeyboardInterrupt" not in done.stderr, done.stderr

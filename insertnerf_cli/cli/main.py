@@ -6,6 +6,7 @@ few milliseconds of the interpreter's own start-up lie outside our reach.
 """
 from __future__ import annotations
 
+import signal
 import sys
 
 from insertnerf_cli.errors import INTERRUPTED, INTERRUPTED_EXIT_CODE
@@ -39,4 +40,15 @@ def main() -> None:
     except KeyboardInterrupt:
         print(INTERRUPTED, file=sys.stderr)
         code = INTERRUPTED_EXIT_CODE
+    _ignore_interrupts()
     sys.exit(code if isinstance(code, int) else 0)
+
+
+def _ignore_interrupts() -> None:
+    """Ctrl-C off for the interpreter's shutdown: the command has ended and its outputs are final, so a Ctrl-C
+    while the thread pools and torch tear down can stop nothing; Python would print it as an 'Exception ignored'
+    traceback and exit 0 all the same."""
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread (an embedding caller): its signals are not ours to change
+        pass
