@@ -150,6 +150,7 @@ def case_poses_two_writers_of_one_out(w: Workspace) -> Plan:
             views = len(load_scene(out))
         except SceneError as err:
             return f"the posed scene does not load: {err}"
-        return f"{views} views, expected 16" if views != 16 else _no_lock_left(out / LOCK)
+        return f"{views} views, expected 16" if views != 16 else _no_lock_left(lock)
 
-    return Plan([Step(second, alongside=first, holds=out / LOCK)], inputs=[photos], consistent=consistent)
+    lock = w.dir / ".scene.insertnerf-lock"  # beside the folder: a killed run leaves no folder that is not a scene
+    return Plan([Step(second, alongside=first, holds=lock)], inputs=[photos], consistent=consistent)
