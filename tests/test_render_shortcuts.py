@@ -9,7 +9,8 @@ import torch
 
 from insertnerf_cli.model.checkpoint import bundled_checkpoint, load_model
 from insertnerf_cli.metrics import psnr
-from insertnerf_cli.rendering.image_renderer import EXACT, PixelGrid, Shortcuts, fine_levels, render_image
+from insertnerf_cli.rendering.image_renderer import (EXACT, VISIBLE_LIGHT, PixelGrid, Shortcuts, _fine_pass_by_levels,
+                                                     fine_levels, render_image)
 from model_fixtures import (FAR, NEAR, TINY, orbit_cameras, sphere_images, sphere_views,  # noqa: F401
                             tiny_model_and_views)
 
@@ -162,3 +163,44 @@ def test_shortcuts_refuse_nonsense():
     with pytest.raises(ValueError):
         Shortcuts(stride_size=-1)
     assert EXACT.exact and not Shortcuts().exact and not Shortcuts(1, 0.0, fine_stride=2).exact
+
+
+def test_nerfpp_background_composited_after_the_foreground_is_the_exact_path_within_visible_light():
+    """The NeRF++ background rendered after the foreground and composited by its transmittance: at stride 1
+    every pixel's own, as the exact path's, except where under VISIBLE_LIGHT gets through."""
+    config = dataclasses.replace(TINY, backbone="nerfpp", samples_background=8)
+    model, encoded, camera = tiny_model_and_views(size=9, config=config)
+    exact = render_image(model, encoded, camera, NEAR, FAR, shortcuts=EXACT)
+    grid_path = render_image(model, encoded, camera, NEAR, FAR, chunk=7, shortcuts=Shortcuts(1, 1e-12, fine_stride=1))
+    torch.testing.assert_close(grid_path.rgb, exact.rgb, atol=VISIBLE_LIGHT, rtol=0)
+    torch.testing.assert_close(grid_path.opacity, exact.opacity)
+    torch.testing.assert_close(grid_path.depth, exact.depth)
+
+
+def test_a_looser_bound_blends_the_pixels_it_covers_and_only_those():
+    """_fine_pass_by_levels with ``looser``: a pixel blends where the spread is within smooth_rgb times its factor
+    (NeRF++'s background behind a foreground that lets little light through), else gets its own pass."""
+    height = width = 9
+    values = torch.rand(height * width, 5)
+    values[:, 3:] = 0.0  # no depth or opacity: the colours decide
+
+    def run(looser):
+        out, filled = torch.zeros(height * width, 5), []
+
+        def fill(rows):
+            filled.append(rows)
+            out[rows] = values[rows]
+
+        _fine_pass_by_levels(out, torch.ones(height * width, dtype=torch.bool), (height, width),
+                             Shortcuts(1, 0.0, fine_stride=2, smooth_rgb=0.01), torch.tensor(1.0), fill, looser)
+        return torch.cat(filled)
+
+    grid = PixelGrid(height, width, 2, torch.device("cpu"))
+    assert len(run(None)) > len(grid.index)  # random colours disagree: pixels between get their own pass
+    loose = torch.ones(height * width)
+    loose[:40] = 1e6  # the first 40 pixels: any spread passes
+    rendered = run(loose)
+    between = torch.ones(height * width, dtype=torch.bool)
+    between[grid.index] = False
+    assert not set(rendered.tolist()) & set(torch.arange(40)[between[:40]].tolist())
+    assert set(rendered.tolist()) >= set((torch.arange(40, height * width)[between[40:]]).tolist())

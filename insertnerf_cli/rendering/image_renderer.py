@@ -29,6 +29,10 @@ class ImageOutput:
     opacity: Tensor  # [H, W]
 
 
+# Light a NeRF++ foreground must let through for its pixel's background to be rendered: under half an 8-bit step.
+VISIBLE_LIGHT = 1.0 / 512
+
+
 @dataclass(frozen=True)
 class Shortcuts:
     """How much of the exact per-ray work a frame skips (render and eval use the defaults; tests hold every
@@ -176,18 +180,12 @@ def _render_with_shortcuts(model: InsertNeRF, encoded: EncodedViews, rays: Rays,
     weights = grid.blend(grid_weights)  # [R, S_c]
     live = grid.nearest_max(grid_weights.sum(dim=-1)) >= shortcuts.empty_opacity  # [R]
 
-    # What an empty pixel shows: what the reference views see at infinity, or the NeRF++ background field; the
-    # fine pass composites its pixels over the same.
+    # What an empty pixel shows: what the reference views see at infinity; the fine pass composites its pixels
+    # over the same. NeRF++'s background field comes after the foreground instead (below).
+    nerfpp = model.config.backbone == "nerfpp"
     backdrop = model.background.to(weights).expand(len(rays), 3)
-    if model.config.backbone == "nerfpp":  # like the fine pass: on a grid, blended where the grid agrees
-        behind = torch.zeros(len(rays), 5, dtype=weights.dtype, device=weights.device)
-
-        def fill_behind(rows: Tensor) -> None:
-            if len(rows):
-                behind[rows, :3] = torch.cat(chunked(lambda i: model.backdrop(encoded, rays[rows[i]]), len(rows)))
-
-        _fine_pass_by_levels(behind, torch.ones_like(live), size, shortcuts, edges[0, -1] - edges[0, 0], fill_behind)
-        backdrop = behind[:, :3]
+    if nerfpp:
+        backdrop = torch.zeros_like(backdrop)
     elif model.config.infinity_sample:
         backdrop = torch.cat(chunked(lambda i: model.backdrop(encoded, rays[i]), len(rays)))
 
@@ -206,15 +204,37 @@ def _render_with_shortcuts(model: InsertNeRF, encoded: EncodedViews, rays: Rays,
         if outs:
             out[rows] = torch.cat([torch.cat([o.rgb, o.depth[:, None], o.opacity[:, None]], dim=-1) for o in outs])
 
-    _fine_pass_by_levels(out, live, size, shortcuts, edges[0, -1] - edges[0, 0], fill)
+    depth_range = edges[0, -1] - edges[0, 0]
+    _fine_pass_by_levels(out, live, size, shortcuts, depth_range, fill)
+    if nerfpp:  # compositing is linear in what lies behind: C = C_fg + T_fg C_bg
+        transmittance = 1.0 - out[:, 4:5]  # [R, 1]
+        out[:, :3] += transmittance * _background(model, encoded, rays, size, shortcuts, chunked, depth_range,
+                                                  transmittance[:, 0])
     return out[:, :3], out[:, 3], out[:, 4]
 
 
+def _background(model: InsertNeRF, encoded: EncodedViews, rays: Rays, size: tuple[int, int], shortcuts: Shortcuts,
+                chunked: Callable, depth_range: Tensor, transmittance: Tensor) -> Tensor:
+    """[R, 3] NeRF++'s background field behind each of the frame's R pixels, given the light [R] its foreground lets
+    through. Run on pixel grids as the fine pass runs, where more than VISIBLE_LIGHT gets through; a pixel takes
+    the blend of its four neighbours where their colours spread by at most smooth_rgb over its transmittance, since
+    the pixel shows its background only that much dimmed (a bound on what the blend changes in it)."""
+    behind = torch.zeros(len(rays), 5, dtype=transmittance.dtype, device=transmittance.device)
+
+    def fill(rows: Tensor) -> None:
+        if len(rows):
+            behind[rows, :3] = torch.cat(chunked(lambda i: model.backdrop(encoded, rays[rows[i]]), len(rows)))
+
+    _fine_pass_by_levels(behind, transmittance > VISIBLE_LIGHT, size, shortcuts, depth_range, fill,
+                         1.0 / transmittance.clamp(min=VISIBLE_LIGHT))
+    return behind[:, :3]
+
+
 def _fine_pass_by_levels(out: Tensor, live: Tensor, size: tuple[int, int], shortcuts: Shortcuts, depth_range: Tensor,
-                         fill: Callable[[Tensor], None]) -> None:
+                         fill: Callable[[Tensor], None], looser: Tensor | None = None) -> None:
     """Fill ``out`` [R, 5] (rgb, depth, opacity) of the ``live`` [R] pixels level by level (fine_levels): a
-    level's new pixels take the blend of the level before where its four pixels agree, else ``fill`` gives them
-    their own fine pass."""
+    level's new pixels take the blend of the level before where its four pixels agree (``looser`` [R]: each
+    pixel's colour bound smooth_rgb times this), else ``fill`` gives them their own fine pass."""
     known = torch.zeros_like(live)
     previous: PixelGrid | None = None
     for stride in fine_levels(shortcuts.fine_stride):
@@ -225,7 +245,8 @@ def _fine_pass_by_levels(out: Tensor, live: Tensor, size: tuple[int, int], short
         if previous is not None:
             corners = out[previous.index]  # [G, 5]
             spread = previous.spread(corners)  # [R, 5]
-            smooth = todo & ((spread[:, [0, 1, 2, 4]].amax(dim=-1) <= shortcuts.smooth_rgb)
+            bound = shortcuts.smooth_rgb if looser is None else shortcuts.smooth_rgb * looser
+            smooth = todo & ((spread[:, [0, 1, 2, 4]].amax(dim=-1) <= bound)
                              & (spread[:, 3] <= shortcuts.smooth_depth * depth_range.clamp(min=1e-6)))  # [R]
             out[smooth] = previous.blend(corners)[smooth]
             todo &= ~smooth
