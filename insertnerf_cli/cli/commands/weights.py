@@ -46,7 +46,7 @@ def model_options(func: Callable[..., Any] | None = None, *, views_option: Calla
                      "CUDA]"),
         click.option("--exact", is_flag=True,
                      help="Give every pixel its own coarse pass and a fine pass (slower). By default the coarse "
-                     "pass runs on every 4th pixel, background pixels skip the fine pass, and pixels between "
+                     "pass runs on every 8th pixel, background pixels skip the fine pass, and pixels between "
                      "agreeing neighbours are blended from them (within 0.3 dB)."),
         click.option("--sfm-depth/--no-sfm-depth", default=True, show_default=True,
                      help="Send most fine samples to the depth of the scene's structure-from-motion points seen "
