@@ -16,6 +16,8 @@ from hostile_finetune import finetune_args
 from hostile_kit import (KILL, Plan, Step, Workspace, case, eval_args, frames_decodable, poses_args, render_args,
                          synth_args, train_args)
 
+from insertnerf_cli.files.lock import lock_file
+
 LOCK = ".insertnerf-lock"
 
 
@@ -116,10 +118,10 @@ def case_finetune_two_writers_of_one_out(w: Workspace) -> Plan:
             torch.load(out, map_location="cpu", weights_only=True)
         except Exception as err:  # noqa: BLE001
             return f"ft.pt does not load: {err}"
-        return _no_lock_left(w.dir / ".ft.pt.insertnerf-lock")
+        return _no_lock_left(lock)
 
-    return Plan([Step(second, alongside=first, holds=w.dir / ".ft.pt.insertnerf-lock")], inputs=[scene],
-                consistent=consistent)
+    lock = lock_file(out, is_dir=False)  # beside the checkpoint
+    return Plan([Step(second, alongside=first, holds=lock)], inputs=[scene], consistent=consistent)
 
 
 @case
@@ -152,5 +154,5 @@ def case_poses_two_writers_of_one_out(w: Workspace) -> Plan:
             return f"the posed scene does not load: {err}"
         return f"{views} views, expected 16" if views != 16 else _no_lock_left(lock)
 
-    lock = w.dir / ".scene.insertnerf-lock"  # beside the folder: a killed run leaves no folder that is not a scene
+    lock = lock_file(out, is_dir=False)  # beside the folder: a killed run leaves no folder that is not a scene
     return Plan([Step(second, alongside=first, holds=lock)], inputs=[photos], consistent=consistent)
