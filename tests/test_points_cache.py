@@ -83,3 +83,35 @@ def test_eval_with_out_keeps_the_points_of_its_references(posed, tmp_path):
     assert len(list((tmp_path / "report" / "points").glob("*.npz"))) == 1
     second = run(*args, "--overwrite")
     assert second.exit_code == 0 and "triangulated by an earlier run" in second.output
+
+
+@pytest.mark.slow
+def test_a_points_cache_folder_serves_renders_into_other_folders_and_outlives_overwrite(posed, tmp_path):
+    scene, ckpt = posed
+    cache = tmp_path / "shared" / "points"
+    args = ["--checkpoint", ckpt, "--device", "cpu", "--views", 3, "--frames", 1, "--points-cache", cache]
+    first = run("render", scene, "--out", tmp_path / "a", "--resolution", 32, *args)
+    assert first.exit_code == 0, first.output
+    assert "triangulating SfM points" in first.output
+    stored = sorted(cache.glob("*.npz"))
+    assert len(stored) == 1 and not (tmp_path / "a" / "points").exists()
+    for out, extra in ((tmp_path / "b", []), (tmp_path / "a", ["--overwrite"])):
+        again = run("render", scene, "--out", out, "--resolution", 24, *args, *extra)
+        assert again.exit_code == 0, again.output
+        assert "triangulating" not in again.output and f"loaded from {stored[0]}" in again.output.replace("\n", "")
+    assert sorted(cache.glob("*.npz")) == stored  # --overwrite removed only what render recorded in a/
+    evaluated = run("eval", scene, "--views", 3, "--resolution", 24, *args[:4], "--points-cache", cache)
+    assert evaluated.exit_code == 0, evaluated.output  # eval triangulates from its references alone: its own key
+    assert len(list(cache.glob("*.npz"))) == 2
+
+
+def test_a_points_cache_inside_the_scene_is_refused_before_any_work(posed, tmp_path):
+    scene, ckpt = posed
+    before = sorted(p.relative_to(scene) for p in scene.rglob("*"))
+    for command in (["render", scene, "--out", tmp_path / "views"], ["eval", scene]):
+        result = run(*command, "--checkpoint", ckpt, "--device", "cpu", "--points-cache", scene / "points")
+        assert result.exit_code == 1
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and "--points-cache" in lines[0] and "inside the input scene" in lines[0], lines
+    assert sorted(p.relative_to(scene) for p in scene.rglob("*")) == before
+    assert not (tmp_path / "views").exists()

@@ -37,6 +37,8 @@ class RenderConfig:
         finetune_minutes: first fine-tune the weights on the scene for this long (cached as OUT/finetune.pt).
         depth_format: "png16" (uint16 PNGs, scale in cameras.json) or "npy" (float32 scene units, NaN invalid).
         pointcloud_points: write pointcloud.ply with at most this many points (None = no point cloud).
+        points_cache: keep the SfM points triangulated at the scene's poses in this folder, shared by runs into
+            other output folders (sfm/points_cache.py), instead of in OUT/points/.
         options: the render path's tuned numbers (RenderOptions), recorded in render_config.json and index.html.
     """
 
@@ -55,6 +57,7 @@ class RenderConfig:
     finetune_minutes: float | None = None
     depth_format: str = "png16"
     pointcloud_points: int | None = None
+    points_cache: Path | None = None
     options: RenderOptions = field(default_factory=RenderOptions)
 
 
@@ -104,6 +107,8 @@ class EvalConfig:
         max_views: score at most this many held-out views, evenly spread (None = all); the others stay out of the
             references, so each score is the one the full run gives that view.
         overwrite: replace an existing JSON report and side-by-side images.
+        points_cache: keep the SfM points triangulated at the scene's poses in this folder (as RenderConfig), else
+            in out_dir/points/ where there is an out_dir.
         options: the render path's tuned numbers (RenderOptions), recorded in the JSON report and report.html.
     """
 
@@ -118,6 +123,7 @@ class EvalConfig:
     json_path: Path | None = None
     max_views: int | None = None
     overwrite: bool = False
+    points_cache: Path | None = None
     options: RenderOptions = field(default_factory=RenderOptions)
 
     @property

@@ -20,13 +20,13 @@ from insertnerf_cli.exporters.eval_outputs import (
     side_by_side,
     side_by_side_name,
 )
-from insertnerf_cli.exporters.outputs import POINTS_DIR, write_png
+from insertnerf_cli.exporters.outputs import write_png
 from insertnerf_cli.exporters.records import EvalConfig, EvalReport, EvalRun, ViewScore
 from insertnerf_cli.exporters.report.eval_page import eval_page
 from insertnerf_cli.files.atomic import write_bytes, write_json
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
-from insertnerf_cli.files.outdir import OutputRecord, record_name
 from insertnerf_cli.metrics import SSIM_WINDOW, psnr, ssim
+from insertnerf_cli.pipelines.inputs import points_cache
 from insertnerf_cli.rendering.view_renderer import ViewRenderer, checkpoint_path, load_model
 from insertnerf_cli.scenes import load_scene, normalize_scene, walk_warning
 from insertnerf_cli.scenes.views import evenly_spread, held_out_views
@@ -48,6 +48,7 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     counts = config.counts
     out_dir = Path(config.out_dir) if config.out_dir is not None else None
     check_eval_outputs(Path(scene_dir), config.checkpoint, config.json_path, out_dir, config.overwrite)
+    cache, claim = points_cache(config.points_cache, Path(scene_dir), out_dir, OWNER)
     if out_dir is not None:
         lock_output(out_dir, OWNER)  # one writer per folder (lock.py)
     scene = load_scene(Path(scene_dir))
@@ -65,9 +66,7 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     model = load_model(weights, config.device)  # a bad checkpoint fails before the triangulation's half minute
     prepare_side_by_sides(out_dir, scored, counts)  # an earlier eval's outputs go first; its SfM points stay
     if config.sfm_depth:  # from the references alone: a held-out photo lends nothing to its own render
-        cache = None if out_dir is None else out_dir / POINTS_DIR  # kept for a later eval or render into --out
-        scene = with_points(scene, [i for i in range(len(scene)) if i not in held], cache,
-                            lambda file: OutputRecord(out_dir, OWNER).claim(POINTS_DIR, record_name(out_dir, file)))
+        scene = with_points(scene, [i for i in range(len(scene)) if i not in held], cache, claim)
     renderer = ViewRenderer(model, scene, size, max(counts), config.device, config.chunk, config.exact,
                             config.sfm_depth, config.options)
     scores: dict[int, list[ViewScore]] = {n: [] for n in counts}

@@ -6,12 +6,13 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import torch
 
 from insertnerf_cli.errors import UserError
-from insertnerf_cli.exporters.outputs import OWNER as RENDER_OWNER, POSES_DIR
-from insertnerf_cli.files.outdir import OutputRecord, remove_if_empty
+from insertnerf_cli.exporters.outputs import OWNER as RENDER_OWNER, POINTS_DIR, POSES_DIR
+from insertnerf_cli.files.outdir import OutputRecord, check_output, record_name, remove_if_empty
 from insertnerf_cli.finetune import FinetuneConfig, cached_finetune
 from insertnerf_cli.finetune.render_cache import RECORD, WEIGHTS
 from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses
@@ -37,6 +38,24 @@ def _image_fingerprint(folder: Path) -> list[list] | None:
     except UserError:
         return None
     return [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in images] or None
+
+
+def points_cache(given: Path | None, scene_dir: Path, out_dir: Path | None,
+                 owner: str) -> tuple[Path | None, Callable[[Path], None] | None]:
+    """(folder, claim) for triangulate.with_points: where a run keeps the SfM points it triangulates at a scene's
+    poses (sfm/points_cache.py), and how a file written there joins the run's output record.
+
+    ``given`` (--points-cache) is a folder the user keeps between runs into other output folders: its files are
+    not recorded, so `--overwrite` never removes them; it is checked here, before any long work, to lie outside
+    the scene. Else OUT/points/ (``out_dir``), recorded as ``owner``'s; else nowhere.
+    """
+    if given is not None:
+        check_output(given, [scene_dir], what="--points-cache", kind="input scene")
+        return given, None
+    if out_dir is None:
+        return None, None
+    return out_dir / POINTS_DIR, lambda file: OutputRecord(out_dir, owner).claim(POINTS_DIR,
+                                                                                 record_name(out_dir, file))
 
 
 def unposed_photos(scene_dir: Path) -> Photos | None:

@@ -21,7 +21,6 @@ from insertnerf_cli.config import config_to_json
 from insertnerf_cli.exporters.outputs import (
     CAMERAS_JSON,
     OWNER as RENDER_OWNER,
-    POINTS_DIR,
     POSES_DIR,
     VIDEOS,
     check_resumable,
@@ -45,9 +44,9 @@ from insertnerf_cli.exporters.records import DEFAULT_FPS, DEFAULT_FRAMES, Render
 from insertnerf_cli.exporters.report.render_page import RenderPage, render_page
 from insertnerf_cli.files.atomic import write_bytes
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
-from insertnerf_cli.files.outdir import OutputRecord, check_output, record_name
+from insertnerf_cli.files.outdir import check_output
 from insertnerf_cli.model.checkpoint import checkpoint_sha256
-from insertnerf_cli.pipelines.inputs import finetuned, posed_photos, unposed_photos
+from insertnerf_cli.pipelines.inputs import finetuned, points_cache, posed_photos, unposed_photos
 from insertnerf_cli.rendering.camera_paths import (CameraPath, default_path_kind, given_path, make_path,
                                                   with_reference_bounds)
 from insertnerf_cli.rendering.path_files import PathFile, read_path_file
@@ -113,6 +112,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     fps = config.fps if config.fps is not None else (path_file.fps if path_file and path_file.fps else DEFAULT_FPS)
     config = replace(config, fps=fps)
     check_output(out_dir, [scene_dir], kind="input scene")
+    cache, claim = points_cache(config.points_cache, scene_dir, out_dir, RENDER_OWNER)
     ffmpeg_exe()  # before any long work: the videos need it
     checkpoint = checkpoint_path(config.checkpoint)
     photos = unposed_photos(scene_dir)
@@ -127,8 +127,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     user_cams = similarity.inverse().apply_cameras(path.cameras)
     check_resumable(out_dir, user_cams)  # before the long work: triangulating, fine-tuning
     if config.sfm_depth:  # once: the fine-tune's prior takes the same points (it counts its usable views' only)
-        scene = with_points(scene, cache=out_dir / POINTS_DIR, claim=lambda file: OutputRecord(
-            out_dir, RENDER_OWNER).claim(POINTS_DIR, record_name(out_dir, file)))
+        scene = with_points(scene, cache=cache, claim=claim)
     if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
         # Where the render's triangulation found no point, the fine-tune's (from fewer photos) would not either:
         # it trains without the prior instead of trying again and warning twice.

@@ -1,7 +1,8 @@
 """Triangulated SfM points kept between runs: `render` and `eval --out` write the points they triangulate, with
-each view's observations, into OUT/points/, keyed by the photos (names, sizes, modification times), the poses and
-intrinsics the points were triangulated at, the views that could observe them and the triangulation's options. A
-later run of the same scene (another resolution, path or view count) loads them instead of triangulating again.
+each view's observations, into OUT/points/ (or the folder --points-cache names), keyed by the photos (names, sizes,
+modification times), the poses and intrinsics the points were triangulated at, the views that could observe them
+and the triangulation's options. A later run of the same scene (another resolution, path or view count) loads them
+instead of triangulating again.
 
 One ``.npz`` per key (numbers only, read with ``allow_pickle=False``): ``xyz`` [P, 3] float64, ``views`` [V] int64
 (the scene's view count, so a file cannot be applied to another scene), ``observed`` [O] int64 (every view's point

@@ -67,7 +67,7 @@ def _table(run: EvalRun) -> list[str]:
 def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, max_views: int | None,
                  views: tuple[int, ...], resolution: int, model: str, checkpoint: Path | None,
                  backbone: str | None, chunk: int,
-                 exact: bool, sfm_depth: bool, device: str, overwrite: bool) -> None:
+                 exact: bool, sfm_depth: bool, points_cache: Path | None, device: str, overwrite: bool) -> None:
     """Score novel-view quality on SCENE_DIR: render each held-out view (the test split, else every 8th view)
     from its nearest other views and compare it with the photo.
 
@@ -79,7 +79,7 @@ def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, 
     config = EvalConfig(views=views[0] if len(views) == 1 else views, resolution=resolution or None,
                         checkpoint=chosen_weights(model, checkpoint, backbone), device=str(resolve_device(device)),
                         chunk=chunk, exact=exact, sfm_depth=sfm_depth, out_dir=out_dir, json_path=json_path,
-                        max_views=max_views, overwrite=overwrite)
+                        max_views=max_views, overwrite=overwrite, points_cache=points_cache)
     run = run_eval(scene_dir, config)
     written = [f"{what} in {path.resolve()}" for what, path in
                (("report", json_path), ("side-by-sides and report.html", out_dir)) if path is not None]

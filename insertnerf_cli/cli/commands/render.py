@@ -48,7 +48,7 @@ from insertnerf_cli.rendering.camera_paths import PATH_KINDS
 def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | None, fps: float | None, views: int,
            resolution: int, model: str, checkpoint: Path | None, backbone: str | None, chunk: int, exact: bool,
            sfm_depth: bool, device: str, overwrite: bool, finetune_minutes: float | None, depth_format: str,
-           pointcloud: bool, pointcloud_points: int) -> None:
+           pointcloud: bool, pointcloud_points: int, points_cache: Path | None) -> None:
     """Render novel views of SCENE_DIR into --out: frames, depth maps, videos and cameras.
 
     SCENE_DIR is a scene in any supported format, or a plain folder of photos, or a COLMAP project whose images/
@@ -69,5 +69,6 @@ def render(scene_dir: Path, out_dir: Path, path_kind: str | None, frames: int | 
                           checkpoint=chosen_weights(model, checkpoint, backbone), device=str(resolve_device(device)),
                           chunk=chunk, exact=exact, sfm_depth=sfm_depth, overwrite=overwrite,
                           finetune_minutes=finetune_minutes,
-                          depth_format=depth_format, pointcloud_points=pointcloud_points if pointcloud else None)
+                          depth_format=depth_format, pointcloud_points=pointcloud_points if pointcloud else None,
+                          points_cache=points_cache)
     click.echo(render_scene(scene_dir, out_dir, config).line())

@@ -1,6 +1,6 @@
 """The options that choose the generator's weights and how it renders, shared by `render`, `eval` and `finetune`:
 --model, --checkpoint, --backbone (chosen_weights turns them into one checkpoint path), --views, --resolution,
---chunk, --exact, --sfm-depth."""
+--chunk, --exact, --sfm-depth, --points-cache."""
 from __future__ import annotations
 
 import functools
@@ -24,8 +24,8 @@ backbone_option = click.option(
 
 
 def model_options(func: Callable[..., Any] | None = None, *, views_option: Callable | None = None) -> Any:
-    """--views, --resolution, --model, --checkpoint, --backbone, --chunk, --exact, --sfm-depth: shared by render
-    and eval (eval passes its own --views, which takes a list)."""
+    """--views, --resolution, --model, --checkpoint, --backbone, --chunk, --exact, --sfm-depth, --points-cache:
+    shared by render and eval (eval passes its own --views, which takes a list)."""
     if func is None:
         return functools.partial(model_options, views_option=views_option)
     options = [
@@ -57,6 +57,11 @@ def model_options(func: Callable[..., Any] | None = None, *, views_option: Calla
                      "COLMAP model (poses from `insertnerf poses` have one); a scene without points gets them "
                      "triangulated at its own poses first (SIFT matched along the epipolar lines, about 40-90 s "
                      "for 30-120 photos on 2 cores)."),
+        click.option("--points-cache", type=click.Path(file_okay=False, path_type=Path), metavar="DIR",
+                     help="Keep the SfM points triangulated at the scene's poses (when it has none) in DIR, "
+                     "outside the scene, so that later runs into other output folders load them instead of "
+                     "triangulating again; keyed by the photos, poses and settings, never removed by --overwrite.  "
+                     "[default: OUT/points/]"),
     ]
     for option in reversed(options):
         func = option(func)
