@@ -61,7 +61,7 @@ def model_options(func: Callable[..., Any] | None = None, *, views_option: Calla
                      help="Keep the SfM points triangulated at the scene's poses (when it has none) in DIR, "
                      "outside the scene, so that later runs into other output folders load them instead of "
                      "triangulating again; keyed by the photos, poses and settings, never removed by --overwrite.  "
-                     "[default: OUT/points/]"),
+                     "[default: OUT/points/; eval: with --out only]"),
     ]
     for option in reversed(options):
         func = option(func)
