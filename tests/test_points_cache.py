@@ -115,3 +115,19 @@ def test_a_points_cache_inside_the_scene_is_refused_before_any_work(posed, tmp_p
         assert len(lines) == 1 and "--points-cache" in lines[0] and "inside the input scene" in lines[0], lines
     assert sorted(p.relative_to(scene) for p in scene.rglob("*")) == before
     assert not (tmp_path / "views").exists()
+
+
+@pytest.mark.slow
+def test_finetune_keeps_its_points_in_the_cache_and_a_second_finetune_loads_them(posed, tmp_path):
+    scene, ckpt = posed
+    cache = tmp_path / "points"
+    args = ["finetune", scene, "--checkpoint", ckpt, "--device", "cpu", "--steps", 1, "--views", 3,
+            "--resolution", 32, "--points-cache", cache]
+    first = run(*args, "--out", tmp_path / "a.pt")
+    assert first.exit_code == 0, first.output
+    assert "triangulating SfM points" in first.output and len(list(cache.glob("*.npz"))) == 1
+    second = run(*args, "--out", tmp_path / "b.pt")
+    assert second.exit_code == 0, second.output
+    assert "triangulating" not in second.output and "triangulated by an earlier run" in second.output
+    inside = run(*args[:-1], scene / "points", "--out", tmp_path / "c.pt")
+    assert inside.exit_code == 1 and "--points-cache" in inside.output and not (tmp_path / "c.pt").exists()

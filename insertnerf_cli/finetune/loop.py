@@ -117,7 +117,8 @@ def check_out_file(out: Path, scene_dir: Path, overwrite: bool, base: Path | Non
 @releases_output_locks
 def finetune(scene_dir: str | Path, out: str | Path, config: FinetuneConfig, device: torch.device,
              base: Path | None = None, overwrite: bool = False, on_step: Callable[[Progress], None] | None = None,
-             say: Say | None = None, points: ScenePoints | None = None) -> FinetuneResult:
+             say: Say | None = None, points: ScenePoints | None = None,
+             points_cache: Path | None = None) -> FinetuneResult:
     """Fine-tune ``base`` (default: the bundled generator) on the scene in ``scene_dir``; write ``out``.
 
     Args:
@@ -125,18 +126,22 @@ def finetune(scene_dir: str | Path, out: str | Path, config: FinetuneConfig, dev
         points: SfM points of the normalised scene that a caller already has (render --finetune triangulates
             once from every view): the prior's rule counts only the usable views' observations (TargetPriors), so
             eval's held-out photos still lend nothing. None: the scene's own, else triangulated here.
+        points_cache: a folder outside the scene (--points-cache) where the points triangulated here are kept and
+            found again by a later finetune of the same scene, photos and resolution (sfm/points_cache.py).
     Raises:
         UserError: bad --out, unreadable scene or checkpoint, too few usable views, or a diverging loss.
     """
     say = say or _tqdm_say
     scene_dir, out = Path(scene_dir), Path(out)
     check_out_file(out, scene_dir, overwrite, base)
+    if points_cache is not None:
+        check_output(points_cache, [scene_dir], what="--points-cache", kind="input scene")
     lock_output(out, "finetune", is_dir=False)
     checkpoint = read_checkpoint(base if base is not None else bundled_checkpoint())
     scene = finetune_scene(scene_dir, config.resolution)
     if config.sfm_depth:  # from the usable views only: eval's held-out photos lend nothing, as in eval
         given = scene.scene if points is None else replace(scene.scene, points=points)
-        scene = replace(scene, scene=with_points(given, list(scene.train_ids)))
+        scene = replace(scene, scene=with_points(given, list(scene.train_ids), points_cache))
     torch.manual_seed(config.seed)
     model = build_model(checkpoint, device)
     model.train()
