@@ -23,6 +23,7 @@ from insertnerf_cli.metrics import psnr_from_mse
 from insertnerf_cli.model import InsertNeRF, LossTerms
 from insertnerf_cli.model.checkpoint import build_model, bundled_checkpoint, read_checkpoint, save_checkpoint
 from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.sfm.points_cache import check_cache_folder
 from insertnerf_cli.sfm.triangulate import with_points
 from insertnerf_cli.training.data import ImageCache, TrainScene, make_batch
 
@@ -135,7 +136,7 @@ def finetune(scene_dir: str | Path, out: str | Path, config: FinetuneConfig, dev
     scene_dir, out = Path(scene_dir), Path(out)
     check_out_file(out, scene_dir, overwrite, base)
     if points_cache is not None:
-        check_output(points_cache, [scene_dir], what="--points-cache", kind="input scene")
+        check_cache_folder(points_cache, scene_dir)
     lock_output(out, "finetune", is_dir=False)
     checkpoint = read_checkpoint(base if base is not None else bundled_checkpoint())
     scene = finetune_scene(scene_dir, config.resolution)

@@ -12,12 +12,13 @@ import torch
 
 from insertnerf_cli.errors import UserError
 from insertnerf_cli.exporters.outputs import OWNER as RENDER_OWNER, POINTS_DIR, POSES_DIR
-from insertnerf_cli.files.outdir import OutputRecord, check_output, record_name, remove_if_empty
+from insertnerf_cli.files.outdir import OutputRecord, record_name, remove_if_empty
 from insertnerf_cli.finetune import FinetuneConfig, cached_finetune
 from insertnerf_cli.finetune.render_cache import RECORD, WEIGHTS
 from insertnerf_cli.poses.estimate import PosesOptions, estimate_poses
 from insertnerf_cli.scenes import detect_format, find_images, load_scene
 from insertnerf_cli.scenes.points import ScenePoints
+from insertnerf_cli.sfm.points_cache import check_cache_folder
 
 # COLMAP's own project layout keeps the photos here (beside database.db and sparse/ once it has run).
 PROJECT_IMAGES = "images"
@@ -50,7 +51,7 @@ def points_cache(given: Path | None, scene_dir: Path, out_dir: Path | None,
     the scene. Else OUT/points/ (``out_dir``), recorded as ``owner``'s; else nowhere.
     """
     if given is not None:
-        check_output(given, [scene_dir], what="--points-cache", kind="input scene")
+        check_cache_folder(given, scene_dir)
         return given, None
     if out_dir is None:
         return None, None

@@ -20,11 +20,18 @@ import numpy as np
 import torch
 
 from insertnerf_cli.files.atomic import write_bytes
+from insertnerf_cli.files.outdir import check_output
 from insertnerf_cli.scenes import Scene
 from insertnerf_cli.scenes.points import ScenePoints
 
 # Bump when triangulation changes what the same photos, poses and options give.
 CACHE_VERSION = 1
+
+
+def check_cache_folder(folder: Path, scene_dir: Path) -> None:
+    """Refuse, before any work, a --points-cache folder that lies inside (or holds) the scene, is a file or cannot
+    be written: the cache is written by every run that uses it."""
+    check_output(folder, [scene_dir], what="--points-cache", kind="input scene")
 
 
 def cache_key(scene: Scene, views: Sequence[int], options: object) -> str:
