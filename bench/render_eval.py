@@ -5,6 +5,8 @@
     python3 bench/render_eval.py photos                  # wall time: 30 unposed 400x400 photos -> 30 frames
     python3 bench/render_eval.py path                    # orbit/spiral frames and depth vs the synth ground truth
     python3 bench/render_eval.py quality --checkpoint runs/x/checkpoints/best.pt --scenes 3 --keep /tmp/q
+    python3 bench/render_eval.py device --device cuda --resolution 800 --chunks 4096,8192,16384,32768
+                                                         # a default render of 60 hand-held 1000 px photos per chunk
 
 Every figure comes from the real commands run in a child process (`insertnerf synth`, `render`, `eval`), so
 the peak memory printed is that command's own maximum resident set size. The quality scenes use a seed
@@ -57,7 +59,7 @@ def run(args: list[str], tree: Path = HERE, cwd: Path | None = None) -> tuple[fl
 
 
 def model_args(args: argparse.Namespace) -> list[str]:
-    extra = ["--device", "cpu", "--views", str(args.views), *(["--exact"] if args.exact else [])]
+    extra = ["--device", args.device, "--views", str(args.views), *(["--exact"] if args.exact else [])]
     weights = ["--checkpoint", str(args.checkpoint)] if args.checkpoint else ["--model", args.model] if args.model else []
     return extra + weights
 
@@ -93,6 +95,27 @@ def speed(args: argparse.Namespace, work: Path) -> None:
     per_frame = float(re.search(r"([\d.]+) s/frame", stdout).group(1))
     print(f"render: {per_frame:.2f} s per {args.resolution}x{args.resolution} frame with {args.views} reference "
           f"views (mean of {args.frames} frames; {wall:.1f} s wall for the command), peak RSS {peak:.0f} MiB")
+
+
+def device(args: argparse.Namespace, work: Path) -> None:
+    """Seconds per frame of a default `render` at --resolution on --device with each of --chunks rays per network
+    call, on issue 64's capture: 60 synth hand-held photos of 1000x667 without SfM points (--capture-views and
+    --size make it smaller). The first render triangulates the points into a --points-cache that the others load,
+    so every render after it is frames alone; each figure is the command's own s/frame (frames rendered, start-up
+    and videos excluded)."""
+    data = work / "handheld"
+    if not (data / "scene_00000").is_dir():
+        run(["synth", str(data), "--scenes", "1", "--views", str(args.capture_views), "--resolution", str(args.size),
+             "--layout", "handheld", "--photo", "--seed", str(args.seed)])
+    cache = work / "points"
+    for chunk in args.chunks:
+        wall, peak, stdout = run(["render", str(data / "scene_00000"), "--out", str(work / f"chunk_{chunk}"),
+                                  "--frames", str(args.frames), "--resolution", str(args.resolution), "--chunk",
+                                  str(chunk), "--points-cache", str(cache), "--overwrite", *model_args(args)])
+        per_frame = float(re.search(r"([\d.]+) s/frame", stdout).group(1))
+        size = re.search(r"\((?:\w+), (\d+x\d+)\)", stdout).group(1)
+        print(f"{args.device}, chunk {chunk}: {per_frame:.3f} s per {size} frame (mean of {args.frames}); {wall:.1f} s "
+              f"wall for the command, peak RSS {peak:.0f} MiB", flush=True)
 
 
 def photos(args: argparse.Namespace, work: Path) -> None:
@@ -169,27 +192,37 @@ def path_truth(args: argparse.Namespace, work: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("figure", choices=["quality", "speed", "photos", "path"])
+    parser.add_argument("figure", choices=["quality", "speed", "photos", "path", "device"])
     parser.add_argument("--checkpoint", type=Path, help="default: the bundled weights of --model")
     parser.add_argument("--model", help="which bundled generator (fast or full) [default: the default one]")
+    parser.add_argument("--device", default="cpu", help="where the renders run (cpu, cuda, cuda:1)")
+    parser.add_argument("--chunks", type=lambda text: [int(c) for c in text.split(",")], default=[4096],
+                        help="device: rays per network call, one render each (comma-separated)")
     parser.add_argument("--exact", action="store_true", help="render without the shortcuts (render --exact)")
     parser.add_argument("--views", type=int, default=10, help="reference views")
     parser.add_argument("--resolution", type=int, default=200)
     parser.add_argument("--scenes", type=int, default=10)
     parser.add_argument("--test-views", type=int, default=3)
-    parser.add_argument("--capture-views", type=int, default=50,
-                        help="quality: views per fresh scene besides the held-out ones (references are the nearest)")
+    parser.add_argument("--capture-views", type=int, default=None,
+                        help="quality: views per fresh scene besides the held-out ones (references are the nearest; "
+                             "default 50); device: photos of the hand-held capture (default 60)")
     parser.add_argument("--seed", type=int, default=900001)
     parser.add_argument("--frames", type=int, default=None, help="default: 3 (speed), 8 (path), 30 (photos)")
     parser.add_argument("--images", type=int, default=30)
-    parser.add_argument("--size", type=int, default=400)
+    parser.add_argument("--size", type=int, default=None,
+                        help="photos: their size (default 400); device: the hand-held photos' long side (1000)")
     parser.add_argument("--keep", type=Path, help="work in this folder and keep it")
     args = parser.parse_args()
-    args.frames = args.frames or {"speed": 3, "path": 8}.get(args.figure, 30)
+    args.frames = args.frames or {"speed": 3, "path": 8, "device": 10}.get(args.figure, 30)
+    args.capture_views = args.capture_views or (60 if args.figure == "device" else 50)
+    args.size = args.size or (1000 if args.figure == "device" else 400)
+    if args.figure == "device" and args.seed == parser.get_default("seed"):
+        args.seed = 640  # issue 64's hand-held capture (docs/benchmarks.md)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        {"quality": quality, "speed": speed, "photos": photos, "path": path_truth}[args.figure](args, work)
+        {"quality": quality, "speed": speed, "photos": photos, "path": path_truth,
+         "device": device}[args.figure](args, work)
 
 
 if __name__ == "__main__":

@@ -41,7 +41,7 @@ def main() -> None:
         scratch = tempfile.TemporaryDirectory(prefix="views_ab_")
         priors = [int(k) for k in args.colour_prior.split(",")]
         checkpoints = [with_colour_prior(c, k, Path(scratch.name)) for c in checkpoints for k in priors]
-    print(f"checkpoint | capture | " + " | ".join(f"{k} views" for k in counts) + " | 10-3 | 16-10", flush=True)
+    print("checkpoint | capture | " + " | ".join(f"{k} views" for k in counts) + " | 10-3 | 16-10", flush=True)
     for checkpoint in checkpoints:
         for capture in args.captures.split(","):
             run = run_eval(args.root / capture, EvalConfig(views=counts, checkpoint=checkpoint,

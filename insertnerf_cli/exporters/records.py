@@ -80,7 +80,7 @@ class RenderSummary:
     pointcloud_points: int | None = None  # points written to pointcloud.ply (None: not asked for)
 
     def line(self) -> str:
-        speed = "" if self.seconds_per_frame is None else f", {self.seconds_per_frame:.1f} s/frame"
+        speed = "" if self.seconds_per_frame is None else f", {self.seconds_per_frame:.2f} s/frame"
         kept = f" ({self.resumed} kept from the earlier run)" if self.resumed else ""
         files = "video.mp4, depth.mp4, cameras.json, index.html"
         if self.pointcloud_points is not None:
