@@ -15,11 +15,9 @@ from __future__ import annotations
 import os
 import shutil
 import sys
-import time
-from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Iterator, Literal
+from typing import Callable, Literal
 
 import pycolmap
 import torch
@@ -40,8 +38,8 @@ from insertnerf_cli.poses.reconstruction import (
     torn_neighbours,
     undistort,
 )
+from insertnerf_cli.poses.stages import Report, StageTime, Stages, num_threads, pycolmap_log
 
-Report = Callable[[str], None]
 Matcher = Literal["auto", "exhaustive", "sequential", "chain"]
 
 # Under this fraction of registered images the result is probably not what the user wanted (nerfstudio's habit).
@@ -100,12 +98,6 @@ class PosesOptions:
 
 
 @dataclass(frozen=True)
-class StageTime:
-    name: str
-    seconds: float
-
-
-@dataclass(frozen=True)
 class PosesResult:
     """What ``estimate_poses`` produced.
 
@@ -149,51 +141,6 @@ def _stderr(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-class _Stages:
-    """One line when a stage starts, one when it ends (counts, elapsed seconds), throttled counts in between."""
-
-    def __init__(self, report: Report, total: int) -> None:
-        self.report, self.total, self.index, self.times = report, total, 0, []
-        self._name, self._t0, self._last_tick = "", 0.0, 0.0
-
-    def start(self, name: str, detail: str) -> None:
-        self.index += 1
-        self._name, self._t0 = name, time.perf_counter()
-        self._last_tick = self._t0
-        self.report(f"[{self.index}/{self.total}] {name}: {detail}")
-
-    def tick(self, done: int, total: int, what: str, every_s: float = 5.0) -> None:
-        now = time.perf_counter()
-        if now - self._last_tick < every_s or done <= 0:
-            return
-        self._last_tick = now
-        elapsed = now - self._t0
-        eta = elapsed / done * max(total - done, 0)
-        self.report(f"      {done}/{total} {what}, {elapsed:.0f} s elapsed, ~{eta:.0f} s left")
-
-    def done(self, detail: str) -> None:
-        seconds = time.perf_counter() - self._t0
-        self.times.append(StageTime(self._name, seconds))
-        self.report(f"      {detail} ({seconds:.1f} s)")
-
-
-@contextmanager
-def pycolmap_log(verbose: bool) -> Iterator[None]:
-    """Silence pycolmap's glog unless verbose (our own messages report its failures); restore the level after."""
-    previous = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 0 if verbose else 3
-    try:
-        yield
-    finally:
-        pycolmap.logging.minloglevel = previous
-
-
-def _num_threads(requested: int) -> int:
-    if requested > 0:
-        return requested
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
 @releases_output_locks
 def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
                    options: PosesOptions = PosesOptions(), report: Report = _stderr) -> PosesResult:
@@ -210,7 +157,7 @@ def estimate_poses(images_dir: str | os.PathLike, out_dir: str | os.PathLike,
     images_dir, out_dir = Path(images_dir), Path(out_dir)
     check_output(images_dir, out_dir, options.overwrite)
     lock_output(out_dir, OWNER, is_dir=False)  # beside the folder: a killed run leaves no folder that is not a scene
-    stages = _Stages(report, total=6)
+    stages = Stages(report, total=6)
     stages.start("reading images", str(images_dir))
     with staging_folder(out_dir) as tmp, pycolmap_log(options.verbose):
         inputs = read_inputs(images_dir, tmp / "colmap" / "input")
@@ -245,9 +192,9 @@ def _report_result(result: PosesResult, report: Report) -> None:
 
 
 def _run_features_and_matching(inputs: InputImages, db_path: Path, options: PosesOptions,
-                               stages: _Stages) -> str:
+                               stages: Stages) -> str:
     """SIFT features and matches into ``db_path``; returns the matcher used."""
-    _extract(inputs, db_path, options, _num_threads(options.num_threads), stages)
+    _extract(inputs, db_path, options, num_threads(options.num_threads), stages)
     matcher = options.matcher
     if matcher == "auto":
         matcher = "exhaustive" if len(inputs.names) <= options.exhaustive_limit else "sequential"
@@ -255,16 +202,16 @@ def _run_features_and_matching(inputs: InputImages, db_path: Path, options: Pose
     return matcher
 
 
-def _match(db_path: Path, matcher: str, images: int, options: PosesOptions, stages: _Stages) -> None:
+def _match(db_path: Path, matcher: str, images: int, options: PosesOptions, stages: Stages) -> None:
     """One matching stage: COLMAP's matcher with progress, then how many pairs the mapper can use."""
     overlap = options.chain_overlap if matcher == "chain" else options.sequential_overlap
-    stages.done(match(db_path, matcher, images, overlap, _num_threads(options.num_threads),
+    stages.done(match(db_path, matcher, images, overlap, num_threads(options.num_threads),
                       lambda what: stages.start("matching", what),
                       lambda done, pairs: stages.tick(done, pairs, "image pairs matched")))
 
 
 def _map_or_match_every_pair(inputs: InputImages, work: Path, options: PosesOptions, matcher: str,
-                             stages: _Stages) -> tuple["pycolmap.Reconstruction", Path, str]:
+                             stages: Stages) -> tuple["pycolmap.Reconstruction", Path, str]:
     """Mapping, and the matcher behind the model. When "auto" chose the sequential matcher (more than
     ``exhaustive_limit`` images) and it places under WARN_REGISTERED_FRACTION of them, the photos are not in video
     order: up to ``exhaustive_fallback_limit`` images, every pair is matched (the sequential pairs are kept) and
@@ -292,7 +239,7 @@ def _map_or_match_every_pair(inputs: InputImages, work: Path, options: PosesOpti
 
 def _map_a_torn_walk_as_a_chain(inputs: InputImages, work: Path, options: PosesOptions, matcher: str,
                                 rec: "pycolmap.Reconstruction", model_dir: Path,
-                                stages: _Stages) -> tuple["pycolmap.Reconstruction", Path, str]:
+                                stages: Stages) -> tuple["pycolmap.Reconstruction", Path, str]:
     """The model, or one mapped from chain matches when the model tears the name order (check.torn_links) and
     the chain model tears it less, registering as many images. Asked for "exhaustive" or "chain", only a warning.
 
@@ -334,7 +281,7 @@ def _map_a_torn_walk_as_a_chain(inputs: InputImages, work: Path, options: PosesO
     return rec, model_dir, matcher
 
 
-def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads: int, stages: _Stages) -> None:
+def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads: int, stages: Stages) -> None:
     """SIFT on every image; refuse images COLMAP's own decoder could not read (it skips them silently)."""
     stages.start("extracting SIFT features", f"{len(inputs.names)} images, long side capped at "
                  f"{options.max_image_size} px, {threads} threads")
@@ -349,7 +296,7 @@ def _extract(inputs: InputImages, db_path: Path, options: PosesOptions, threads:
 
 
 def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
-                 stages: _Stages) -> tuple["pycolmap.Reconstruction", Path]:
+                 stages: Stages) -> tuple["pycolmap.Reconstruction", Path]:
     """Incremental mapping; the model with the most registered images and its folder. When it places under
     WARN_REGISTERED_FRACTION of the images (or none), once more from an initial pair that may see its points under
     RELAXED_INIT_TRI_ANGLE, keeping the model that registers more."""
@@ -383,7 +330,7 @@ def _run_mapping(inputs: InputImages, work: Path, options: PosesOptions,
 
 
 def _incremental(inputs: InputImages, out: Path, options: PosesOptions, init_tri_angle: float | None,
-                 stages: _Stages) -> tuple["pycolmap.Reconstruction | None", Path, list[int]]:
+                 stages: Stages) -> tuple["pycolmap.Reconstruction | None", Path, list[int]]:
     """One incremental mapping into ``out``: (the largest model or None, its folder, the others' sizes)."""
     n, registered = len(inputs.names), [0]
 
@@ -391,7 +338,7 @@ def _incremental(inputs: InputImages, out: Path, options: PosesOptions, init_tri
         registered[0] += 1
         stages.tick(min(registered[0], n), n, "images registered so far, in all models (the largest is kept)")
 
-    mapping = pycolmap.IncrementalPipelineOptions(num_threads=_num_threads(options.num_threads),
+    mapping = pycolmap.IncrementalPipelineOptions(num_threads=num_threads(options.num_threads),
                                                   random_seed=options.seed, min_model_size=MIN_REGISTERED)
     if init_tri_angle is not None:
         mapping.mapper.init_min_tri_angle = init_tri_angle
@@ -423,7 +370,7 @@ def _check_limits(inputs: InputImages, options: PosesOptions) -> CheckLimits:
 
 
 def _run_check(rec: "pycolmap.Reconstruction", db_path: Path, inputs: InputImages, options: PosesOptions,
-               stages: _Stages) -> PoseCheck:
+               stages: Stages) -> PoseCheck:
     stages.start("checking poses", "does the model explain each pair's matches as well as a two-view estimate?")
     limits = _check_limits(inputs, options)
     check = check_relative_poses(pair_matches(db_path, rec, options.check_pairs), limits)

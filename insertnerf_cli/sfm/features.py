@@ -14,9 +14,9 @@ from typing import Sequence
 import numpy as np
 import pycolmap
 
-from insertnerf_cli.poses.estimate import pycolmap_log
 from insertnerf_cli.poses.extraction import extract_sift
 from insertnerf_cli.poses.folder import colmap_readable
+from insertnerf_cli.poses.stages import pycolmap_log
 from insertnerf_cli.scenes.images import exif_orientation
 
 # SIFT on photos no larger than this: the points guide samples to within a few per cent of depth, which 768 px
