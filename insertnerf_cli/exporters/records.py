@@ -40,6 +40,8 @@ class RenderConfig:
         points_cache: keep the SfM points triangulated at the scene's poses in this folder, shared by runs into
             other output folders (sfm/points_cache.py), instead of in OUT/points/.
         options: the render path's tuned numbers (RenderOptions), recorded in render_config.json and index.html.
+        workers: processes that render frames side by side (pipelines/frames.py; the same pixels with any
+            number); None: on a CPU one per core, each with at least a few frames; on a GPU one.
     """
 
     path: str | None = None
@@ -59,6 +61,7 @@ class RenderConfig:
     pointcloud_points: int | None = None
     points_cache: Path | None = None
     options: RenderOptions = field(default_factory=RenderOptions)
+    workers: int | None = None
 
 
 @dataclass(frozen=True)
@@ -78,6 +81,7 @@ class RenderSummary:
     resolution_asked: int | None = None  # a --resolution above the photos' size (frames never upsample)
     depth_scale: float | None = None  # depth_unit_scale_factor of the depth PNGs (None for npy)
     pointcloud_points: int | None = None  # points written to pointcloud.ply (None: not asked for)
+    workers: int = 1  # processes that rendered frames side by side (pipelines/frames.py)
 
     def line(self) -> str:
         speed = "" if self.seconds_per_frame is None else f", {self.seconds_per_frame:.2f} s/frame"

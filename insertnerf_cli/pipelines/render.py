@@ -27,14 +27,10 @@ from insertnerf_cli.exporters.outputs import (
     check_resumable_scale,
     claim_render_outputs,
     depth_scale_for,
-    depth_to_float,
-    depth_to_turbo,
-    depth_to_uint16,
     ffmpeg_exe,
     frame_paths,
     prepare_out_dir,
     write_cameras_json,
-    write_frame,
     write_state,
     write_video,
 )
@@ -46,6 +42,7 @@ from insertnerf_cli.files.atomic import write_bytes
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.files.outdir import check_output
 from insertnerf_cli.model.checkpoint import checkpoint_sha256
+from insertnerf_cli.pipelines.frames import FrameWriter, RendererSpec, excluded_views, frame_workers, render_frames
 from insertnerf_cli.pipelines.inputs import finetuned, points_cache, posed_photos, unposed_photos
 from insertnerf_cli.rendering.camera_paths import (CameraPath, default_path_kind, given_path, make_path,
                                                   with_reference_bounds)
@@ -57,8 +54,6 @@ from insertnerf_cli.sfm.triangulate import with_points
 
 # 2: the depth PNGs' scale is chosen per render (was millimetres): frames of version 1 are not resumed into it.
 STATE_VERSION = 2
-# Below half opacity a pixel shows mostly background, so its depth says little: it is written as invalid.
-MIN_DEPTH_OPACITY = 0.5
 INDEX_HTML = "index.html"
 POINTCLOUD_PLY = "pointcloud.ply"
 
@@ -115,6 +110,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     cache, claim = points_cache(config.points_cache, scene_dir, out_dir, RENDER_OWNER)
     ffmpeg_exe()  # before any long work: the videos need it
     checkpoint = checkpoint_path(config.checkpoint)
+    weights = checkpoint  # what renders: the checkpoint, or its fine-tuned weights
     photos = unposed_photos(scene_dir)
     # A bad scene, path or checkpoint fails here, before OUT is touched.
     planned = _plan(load_scene(scene_dir), config, path_file) if photos is None else None
@@ -131,17 +127,20 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     if config.finetune_minutes is not None:  # after prepare_out_dir: the weights are cached in OUT
         # Where the render's triangulation found no point, the fine-tune's (from fewer photos) would not either:
         # it trains without the prior instead of trying again and warning twice.
-        model = load_model(finetuned(scene_dir if photos is None else out_dir / POSES_DIR, out_dir, checkpoint,
-                                     config.finetune_minutes, config.views, config.resolution, config.device,
-                                     config.sfm_depth and scene.points is not None, scene.points),
-                           config.device)
+        weights = finetuned(scene_dir if photos is None else out_dir / POSES_DIR, out_dir, checkpoint,
+                            config.finetune_minutes, config.views, config.resolution, config.device,
+                            config.sfm_depth and scene.points is not None, scene.points)
+        model = load_model(weights, config.device)
     extra = [INDEX_HTML] + ([POINTCLOUD_PLY] if config.pointcloud_points is not None else [])
     claim_render_outputs(out_dir, len(path), config.depth_format, *extra)
     write_state(out_dir, state)
-    renderer = ViewRenderer(model, scene, (path.cameras.height, path.cameras.width), config.views, config.device,
-                            config.chunk, config.exact, config.sfm_depth, config.options)
+    size = (path.cameras.height, path.cameras.width)
+    renderer = ViewRenderer(model, scene, size, config.views, config.device, config.chunk, config.exact,
+                            config.sfm_depth, config.options)
+    spec = RendererSpec(weights, scene, size, config.views, config.chunk, config.exact, config.sfm_depth,
+                        config.options)
     path = replace(path, far=torch.tensor([renderer.far_bound(path.cameras.subset([i]), float(path.far[i]),
-                                                              _exclude(path, i)) for i in range(len(path))],
+                                                              excluded_views(path, i)) for i in range(len(path))],
                                           dtype=path.far.dtype))
     near, far = path.near / similarity.scale, path.far / similarity.scale  # [F] in the scene's units
     scale = depth_scale_for(float(far.max())) if config.depth_format == "png16" else 1.0
@@ -150,56 +149,42 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               **({} if path_file is None else {"path_file": str(path_file.source.resolve())}),
                               "normalization": similarity.to_json()})
-    rendered, resumed, seconds, clipped = _render_frames(renderer, path, out_dir, similarity.scale, scale,
-                                                         config.depth_format)
+    writer = FrameWriter(out_dir, similarity.scale, scale, config.depth_format, float(path.near.min()),
+                         float(path.far.max()))
+    rendered, resumed, seconds, clipped, workers = _render_frames(renderer, spec, path, writer, config)
     files = [frame_paths(out_dir, i, config.depth_format) for i in range(len(path))]
     for video, sub in zip(VIDEOS, ("frame", "depth_vis")):
         write_video(out_dir / video, [getattr(f, sub) for f in files], config.fps)
     points = None
     if config.pointcloud_points is not None:
         points = write_pointcloud(out_dir / POINTCLOUD_PLY, user_cams, files, scale, config.pointcloud_points)
-    size = (path.cameras.height, path.cameras.width)
     asked = config.resolution if config.resolution is not None and config.resolution > max(size) else None
     summary = RenderSummary(out_dir, path.kind, len(path), rendered, resumed, *size,
                             seconds / rendered if rendered else None, clipped, time.perf_counter() - started, asked,
-                            scale if config.depth_format == "png16" else None, points)
+                            scale if config.depth_format == "png16" else None, points, workers)
     inputs = similarity.inverse().apply_cameras(scene.cameras)
     page = RenderPage(summary, config, scene_dir, user_cams, inputs, tuple(scene.names))
     write_bytes(out_dir / INDEX_HTML, render_page(page).encode("utf-8"))
     return summary
 
 
-def _render_frames(renderer: ViewRenderer, path: CameraPath, out_dir: Path, similarity_scale: float,
-                   depth_scale: float, depth_format: str) -> tuple[int, int, float, int]:
-    """Render every frame whose files are missing; returns (rendered, kept, seconds spent, clipped depth pixels)."""
-    todo = [i for i in range(len(path)) if not frame_paths(out_dir, i, depth_format).all_exist()]
-    resumed, seconds, clipped = len(path) - len(todo), 0.0, 0
-    near, far = float(path.near.min()), float(path.far.max())
+def _render_frames(renderer: ViewRenderer, spec: RendererSpec, path: CameraPath, writer: FrameWriter,
+                   config: RenderConfig) -> tuple[int, int, float, int, int]:
+    """Render every frame whose files are missing (side by side on a CPU's cores: frames.py); returns (rendered,
+    kept, seconds spent, clipped depth pixels, processes)."""
+    todo = [i for i in range(len(path)) if not writer.done(i)]
+    resumed, clipped = len(path) - len(todo), 0
     if not todo:  # no bar: a finished one printed at start and again at close reads as two in a log
-        print(f"all {len(path)} frames are already rendered in {out_dir}; assembling the videos", file=sys.stderr)
-        return 0, resumed, seconds, clipped
+        print(f"all {len(path)} frames are already rendered in {writer.out_dir}; assembling the videos",
+              file=sys.stderr)
+        return 0, resumed, 0.0, clipped, 1
+    workers = frame_workers(config.workers, len(todo), config.device)
     bar = tqdm(total=len(path), initial=resumed, unit="frame", desc="rendering", file=sys.stderr, dynamic_ncols=True)
+    if workers > 1:
+        bar.set_postfix_str(f"{workers} processes", refresh=False)
+    start = time.perf_counter()
     with bar:
-        for i in todo:
-            start = time.perf_counter()
-            out, _ = renderer.render(path.cameras.subset([i]), float(path.near[i]), float(path.far[i]),
-                                     _exclude(path, i))
-            depth = out.depth.double().cpu().numpy()
-            valid = out.opacity.cpu().numpy() >= MIN_DEPTH_OPACITY
-            if depth_format == "npy":
-                stored, n_clipped = depth_to_float(depth / similarity_scale, valid), 0
-            else:
-                stored, n_clipped = depth_to_uint16(depth / similarity_scale, valid, depth_scale)
-            write_frame(frame_paths(out_dir, i, depth_format), out.rgb.float().cpu().numpy(), stored,
-                        depth_to_turbo(depth, valid, near, far))
+        for _, n_clipped, _ in render_frames(renderer, spec, path, writer, todo, workers):
             clipped += n_clipped
-            took = time.perf_counter() - start
-            seconds += took
-            bar.set_postfix_str(f"last frame {took:.1f} s", refresh=False)
             bar.update(1)
-    return len(todo), resumed, seconds, clipped
-
-
-def _exclude(path: CameraPath, frame: int) -> list[int]:
-    """The input views frame ``frame`` may not be rendered from: for the "input" path, the photo it re-renders."""
-    return [path.source_index[frame]] if path.source_index is not None else []
+    return len(todo), resumed, time.perf_counter() - start, clipped, workers

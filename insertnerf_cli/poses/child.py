@@ -72,7 +72,7 @@ def run_in_child(call: Callable[[Send], T], on_message: Callable[[Any], None] | 
 
 def _child_main(call: Callable[[Send], Any], give: Connection) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides; it kills this process on Ctrl-C
-    _die_with_parent()
+    die_with_parent()
     try:
         result = call(lambda value: give.send(("message", value)))
         give.send(("result", result))
@@ -84,7 +84,7 @@ def _child_main(call: Callable[[Send], Any], give: Connection) -> None:
         give.close()
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """Have the kernel kill this process when its parent dies (Linux's PR_SET_PDEATHSIG), so that a parent killed
     with SIGKILL leaves no COLMAP process writing into its removed staging folder. Elsewhere a no-op."""
     try:

@@ -43,9 +43,10 @@ def _settings(p: RenderPage) -> list[tuple[str, object]]:
 
 
 def _timings(s: RenderSummary) -> list[tuple[str, object]]:
-    speed = "-" if s.seconds_per_frame is None else f"{s.seconds_per_frame:.1f} s"
+    speed = "-" if s.seconds_per_frame is None else f"{s.seconds_per_frame:.2f} s"
     return [("frames rendered by this run", s.rendered), ("frames kept from an earlier run", s.resumed),
-            ("seconds per rendered frame", speed), ("whole command", duration(s.wall_s))]
+            ("seconds per rendered frame", speed), ("processes rendering frames", s.workers),
+            ("whole command", duration(s.wall_s))]
 
 
 def _strip(p: RenderPage) -> str:
