@@ -66,7 +66,7 @@ def _job(tmp_path: Path, checkpoint: Path, frames: int):
     scene, _ = normalize_scene(load_scene(make_scene(tmp_path / "scene", {"train": 8})))
     size = (12, 16)
     path = make_path("orbit", scene.cameras, scene.near, scene.far, frames, size)
-    spec = RendererSpec(checkpoint, scene, size, 2, None, False, False, RenderOptions())
+    spec = RendererSpec(checkpoint, scene, size, 2, "cpu", None, False, False, RenderOptions())
     far = float(path.far.max())
     writer = FrameWriter(tmp_path / "out", 1.0, depth_scale_for(far), "png16", float(path.near.min()), far)
     return spec, path, writer

@@ -77,14 +77,15 @@ class RendererSpec:
     scene: Scene
     size: tuple[int, int]
     views: int
+    device: str
     chunk: int | None
     exact: bool
     sfm_depth: bool
     options: RenderOptions
 
     def build(self) -> ViewRenderer:
-        return ViewRenderer(load_model(self.checkpoint, "cpu"), self.scene, self.size, self.views, "cpu", self.chunk,
-                            self.exact, self.sfm_depth, self.options)
+        return ViewRenderer(load_model(self.checkpoint, self.device), self.scene, self.size, self.views, self.device,
+                            self.chunk, self.exact, self.sfm_depth, self.options)
 
 
 def excluded_views(path: CameraPath, frame: int) -> list[int]:

@@ -137,8 +137,8 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     size = (path.cameras.height, path.cameras.width)
     renderer = ViewRenderer(model, scene, size, config.views, config.device, config.chunk, config.exact,
                             config.sfm_depth, config.options)
-    spec = RendererSpec(weights, scene, size, config.views, config.chunk, config.exact, config.sfm_depth,
-                        config.options)
+    spec = RendererSpec(weights, scene, size, config.views, config.device, config.chunk, config.exact,
+                        config.sfm_depth, config.options)
     path = replace(path, far=torch.tensor([renderer.far_bound(path.cameras.subset([i]), float(path.far[i]),
                                                               excluded_views(path, i)) for i in range(len(path))],
                                           dtype=path.far.dtype))
