@@ -2,12 +2,13 @@
 
 On a CPU, whole frames in separate processes beat one frame's chunks on separate threads: a chunk makes about a
 thousand small torch calls, and between them two threads take turns at Python's global lock. Two one-thread
-processes rendered room's frames in 0.80-0.91x the time of one two-thread process, with the same pixels
-(docs/research-log.md, Speed). The parent renders frames too, from the front of the list, while spawned children
-take them from the back, so a child's start-up (importing torch and this package, a few seconds) costs nothing
-but its own late start, and consecutive frames, which share their reference views' encodings, stay on one
-process. Every frame is written by whoever rendered it (its colour file last, which marks it done); a frame a
-child claimed but never wrote (the child failed or died) is rendered by the parent at the end.
+processes scale to 1.95x one thread where two threads reach 1.6-1.7x; room's 30 frames took 0.76-0.94x the time
+of one two-thread process, with the pixels of a one-thread render (docs/research-log.md, Speed). The parent
+renders frames too, from the front of the list, while spawned children take them from the back, so a child's
+start-up (importing torch and this package, a few seconds) costs nothing but its own late start, and consecutive
+frames, which share their reference views' encodings, stay on one process. Every frame is written by whoever
+rendered it (its colour file last, which marks it done); a frame a child claimed but never wrote (the child
+failed or died) is rendered by the parent at the end.
 """
 from __future__ import annotations
 
@@ -158,7 +159,8 @@ def _claim(front, back, lock, from_front: bool) -> int | None:
 
 
 def _finished(results, timeout: float | None) -> Iterator[tuple[int, int, int]]:
-    """The (frame, clipped, child) results the children have sent: those waiting now, or the first within ``timeout``."""
+    """The (frame, clipped, child) results the children have sent: those waiting now, or the first within
+    ``timeout``."""
     while True:
         try:
             item = results.get(timeout=timeout) if timeout is not None else results.get_nowait()
