@@ -126,12 +126,18 @@ def render_frames(renderer: ViewRenderer, spec: RendererSpec, path: CameraPath, 
         for child in children:
             child.start()
         torch.set_num_threads(1)
+        reported: set[int] = set()
         while (position := _claim(front, back, lock, from_front=True)) is not None:
+            reported.add(todo[position])
             yield todo[position], writer.render(renderer, path, todo[position]), 0
-            yield from _finished(results, timeout=None)
-        while any(child.is_alive() for child in children):
-            yield from _finished(results, timeout=_POLL_S)
-        yield from _finished(results, timeout=None)
+            for item in _finished(results, timeout=None):
+                reported.add(item[0])
+                yield item
+        # Wait only for frames a child is still rendering: one still starting up has none and is stopped below.
+        while len(reported) < len(todo) and any(child.is_alive() for child in children):
+            for item in _finished(results, timeout=_POLL_S):
+                reported.add(item[0])
+                yield item
     finally:
         torch.set_num_threads(threads)
         for child in children:
