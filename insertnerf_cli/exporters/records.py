@@ -40,8 +40,8 @@ class RenderConfig:
         points_cache: keep the SfM points triangulated at the scene's poses in this folder, shared by runs into
             other output folders (sfm/points_cache.py), instead of in OUT/points/.
         options: the render path's tuned numbers (RenderOptions), recorded in render_config.json and index.html.
-        workers: processes that render frames side by side (pipelines/frames.py; the same pixels with any
-            number); None: on a CPU one per core, each with at least a few frames; on a GPU one.
+        workers: processes that render frames side by side (pipelines/frames.py; the same picture with any
+            number, up to float rounding); None: on a CPU one per core, each with a few frames; on a GPU one.
     """
 
     path: str | None = None

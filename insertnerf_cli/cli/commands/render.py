@@ -42,7 +42,8 @@ from insertnerf_cli.rendering.camera_paths import PATH_KINDS
 @click.option("--pointcloud-points", type=click.IntRange(min=1), default=DEFAULT_POINTS, show_default=True,
               help="At most this many points in pointcloud.ply (a uniform random subset beyond).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Processes that render frames side by side; the frames are the same with any number.  "
+              help="Processes that render frames side by side (the picture is the same with any number, up to "
+                   "float rounding).  "
                    "[default: on a CPU one per core, each with at least 3 frames (a process holds about 0.6 GB at "
                    "256 px); on a GPU 1]")
 @model_options
