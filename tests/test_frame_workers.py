@@ -1,7 +1,8 @@
-"""A render's frames in several processes (pipelines/frames.py): the same files as one process, children that
-fail leave their frames to the parent, and Ctrl-C stops every process at once."""
+"""A render's frames and an eval's views in several processes (pipelines/processes.py): the same files and scores
+as one process, children that fail leave their items to the parent, and Ctrl-C stops every process at once."""
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -14,11 +15,12 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 import torch
-from cli_fixtures import make_checkpoint, make_scene, render_command
+from cli_fixtures import make_checkpoint, make_scene, render_command, run
 from test_interrupts import LIMIT_S, MAIN, _ctrl_c_as_in_a_terminal
 
 from insertnerf_cli.exporters.outputs import depth_scale_for
-from insertnerf_cli.pipelines.frames import MAX_WORKERS, FrameWriter, RendererSpec, frame_workers, render_frames
+from insertnerf_cli.pipelines.frames import FrameWriter, render_frames
+from insertnerf_cli.pipelines.processes import MAX_WORKERS, RendererSpec, worker_count
 from insertnerf_cli.rendering.camera_paths import make_path
 from insertnerf_cli.rendering.options import RenderOptions
 from insertnerf_cli.rendering.view_renderer import ViewRenderer, load_model
@@ -28,14 +30,14 @@ pytestmark = pytest.mark.usefixtures("one_thread")  # one thread here, as in eve
 
 
 def test_worker_count(monkeypatch):
-    assert frame_workers(3, 2, "cpu") == 2  # never more processes than frames
-    assert frame_workers(None, 30, "cuda") == 1
+    assert worker_count(3, 2, "cpu") == 2  # never more processes than frames
+    assert worker_count(None, 30, "cuda") == 1
     monkeypatch.setattr(torch, "get_num_threads", lambda: 2)
-    assert frame_workers(None, 30, "cpu") == 2
-    assert frame_workers(None, 5, "cpu") == 1  # a child's start-up would cost more than its frames save
+    assert worker_count(None, 30, "cpu") == 2
+    assert worker_count(None, 5, "cpu") == 1  # a child's start-up would cost more than its frames save
     monkeypatch.setattr(torch, "get_num_threads", lambda: 64)
-    assert frame_workers(None, 300, "cpu") == MAX_WORKERS
-    assert frame_workers(None, 12, "cpu") == 4
+    assert worker_count(None, 300, "cpu") == MAX_WORKERS
+    assert worker_count(None, 12, "cpu") == 4
 
 
 def _frames(folder: Path) -> dict[str, np.ndarray]:
@@ -144,3 +146,20 @@ def test_ctrl_c_while_two_processes_render_exits_130_at_once_and_leaves_no_proce
     assert code == 130 and took < LIMIT_S, (code, took, err[-500:])
     assert "Traceback" not in err
     assert children and not [pid for pid in children if _running(pid)]
+
+
+def test_eval_with_two_processes_scores_as_one(tmp_path):
+    scene = make_scene(tmp_path / "scene", {"train": 8, "test": 6})
+    ckpt = make_checkpoint(tmp_path / "tiny.pt")
+    reports = []
+    for workers in (1, 2):
+        json_path = tmp_path / f"eval{workers}.json"
+        result = run("eval", scene, "--checkpoint", ckpt, "--device", "cpu", "--resolution", 16, "--views", "2,3",
+                     "--workers", workers, "--json", json_path)
+        assert result.exit_code == 0, result.output
+        reports.append(json.loads(json_path.read_text()))
+    def scores(report: dict) -> list:  # every field but the time each render took
+        return [[{k: v for k, v in view.items() if k != "seconds"} for view in r["views"]] for r in report["by_count"]]
+
+    assert scores(reports[0]) == scores(reports[1])
+    assert len(scores(reports[0])[0]) == 6 and "psnr" in scores(reports[0])[0][0]

@@ -40,7 +40,7 @@ class RenderConfig:
         points_cache: keep the SfM points triangulated at the scene's poses in this folder, shared by runs into
             other output folders (sfm/points_cache.py), instead of in OUT/points/.
         options: the render path's tuned numbers (RenderOptions), recorded in render_config.json and index.html.
-        workers: processes that render frames side by side (pipelines/frames.py; the same picture with any
+        workers: processes that render frames side by side (pipelines/processes.py; the same picture with any
             number, up to float rounding); None: on a CPU one per core, each with a few frames; on a GPU one.
     """
 
@@ -81,7 +81,7 @@ class RenderSummary:
     resolution_asked: int | None = None  # a --resolution above the photos' size (frames never upsample)
     depth_scale: float | None = None  # depth_unit_scale_factor of the depth PNGs (None for npy)
     pointcloud_points: int | None = None  # points written to pointcloud.ply (None: not asked for)
-    workers: int = 1  # processes that rendered frames side by side (pipelines/frames.py)
+    workers: int = 1  # processes that rendered frames side by side (pipelines/processes.py)
 
     def line(self) -> str:
         speed = "" if self.seconds_per_frame is None else f", {self.seconds_per_frame:.2f} s/frame"
@@ -114,6 +114,7 @@ class EvalConfig:
         points_cache: keep the SfM points triangulated at the scene's poses in this folder (as RenderConfig), else
             in out_dir/points/ where there is an out_dir.
         options: the render path's tuned numbers (RenderOptions), recorded in the JSON report and report.html.
+        workers: processes that score held-out views side by side (as RenderConfig.workers).
     """
 
     views: int | tuple[int, ...] = DEFAULT_VIEWS
@@ -129,6 +130,7 @@ class EvalConfig:
     overwrite: bool = False
     points_cache: Path | None = None
     options: RenderOptions = field(default_factory=RenderOptions)
+    workers: int | None = None
 
     @property
     def counts(self) -> tuple[int, ...]:

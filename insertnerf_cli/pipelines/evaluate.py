@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from insertnerf_cli.files.atomic import write_bytes, write_json
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.metrics import SSIM_WINDOW, psnr, ssim
 from insertnerf_cli.pipelines.inputs import points_cache
+from insertnerf_cli.pipelines.processes import RendererSpec, run_side_by_side, worker_count
 from insertnerf_cli.rendering.view_renderer import ViewRenderer, checkpoint_path, load_model
 from insertnerf_cli.scenes import load_scene, normalize_scene, walk_warning
 from insertnerf_cli.scenes.views import evenly_spread, held_out_views
@@ -69,21 +71,19 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
         scene = with_points(scene, [i for i in range(len(scene)) if i not in held], cache, claim)
     renderer = ViewRenderer(model, scene, size, max(counts), config.device, config.chunk, config.exact,
                             config.sfm_depth, config.options)
-    scores: dict[int, list[ViewScore]] = {n: [] for n in counts}
-    for index in tqdm(scored, unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True):
-        camera = scene.cameras.subset([index]).rescale(*size)
-        truth = scene.load_image(index, *size).astype(np.float64)
-        # Most references first: the smaller counts' nearest views are among them, already encoded.
-        for n in reversed(counts):
-            start = time.perf_counter()
-            out, refs = renderer.render(camera, float(scene.near[index]), float(scene.far[index]), held, n)
-            if set(refs) & set(held):  # nearest_views honours exclude; this guards the metric's meaning
-                raise RuntimeError(f"held-out views {sorted(set(refs) & set(held))} were chosen as references")
-            render = out.rgb.double().cpu().numpy()
-            scores[n].append(ViewScore(index, scene.names[index], psnr(render, truth), ssim(render, truth),
-                                       tuple(refs), time.perf_counter() - start))
-            if out_dir is not None:
-                write_png(out_dir / side_by_side_name(index, n, len(counts) > 1), side_by_side(render, truth))
+    spec = RendererSpec(weights, scene, size, max(counts), config.device, config.chunk, config.exact,
+                        config.sfm_depth, config.options)
+    work = HeldOutView(size, tuple(held), tuple(counts), out_dir)
+    workers = worker_count(config.workers, len(scored), config.device)
+    by_view: dict[int, tuple[ViewScore, ...]] = {}
+    bar = tqdm(total=len(scored), unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True)
+    if workers > 1:
+        bar.set_postfix_str(f"{workers} processes", refresh=False)
+    with bar:
+        for index, view_scores, _ in run_side_by_side(renderer, spec, work, list(scored), workers):
+            by_view[index] = view_scores
+            bar.update(1)
+    scores = {n: [by_view[index][counts.index(n)] for index in scored] for n in counts}
     reports = tuple(EvalReport(Path(scene_dir), size[0], size[1], float(np.mean([s.psnr for s in scores[n]])),
                                float(np.mean([s.ssim for s in scores[n]])), tuple(scores[n]), n) for n in counts)
     run = EvalRun(config, weights, reports, time.perf_counter() - started)
@@ -92,3 +92,35 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     if config.json_path is not None:
         write_json(config.json_path, run.to_json())
     return run
+
+
+@dataclass(frozen=True)
+class HeldOutView:
+    """Scoring one held-out view at every count (work for processes.run_side_by_side): the view rendered from its
+    ``counts`` nearest references outside ``held`` at ``size``, scored against its photo, and with an ``out_dir``
+    its side-by-sides written there."""
+
+    size: tuple[int, int]
+    held: tuple[int, ...]
+    counts: tuple[int, ...]
+    out_dir: Path | None
+
+    def run(self, renderer: ViewRenderer, index: int) -> tuple[ViewScore, ...]:
+        """The ViewScore of view ``index`` at each count, in the order of ``counts``."""
+        scene, held = renderer.scene, list(self.held)
+        camera = scene.cameras.subset([index]).rescale(*self.size)
+        truth = scene.load_image(index, *self.size).astype(np.float64)
+        scores: dict[int, ViewScore] = {}
+        # Most references first: the smaller counts' nearest views are among them, already encoded.
+        for n in reversed(self.counts):
+            start = time.perf_counter()
+            out, refs = renderer.render(camera, float(scene.near[index]), float(scene.far[index]), held, n)
+            if set(refs) & set(held):  # nearest_views honours exclude; this guards the metric's meaning
+                raise RuntimeError(f"held-out views {sorted(set(refs) & set(held))} were chosen as references")
+            render = out.rgb.double().cpu().numpy()
+            scores[n] = ViewScore(index, scene.names[index], psnr(render, truth), ssim(render, truth), tuple(refs),
+                                  time.perf_counter() - start)
+            if self.out_dir is not None:
+                write_png(self.out_dir / side_by_side_name(index, n, len(self.counts) > 1),
+                          side_by_side(render, truth))
+        return tuple(scores[n] for n in self.counts)

@@ -42,8 +42,9 @@ from insertnerf_cli.files.atomic import write_bytes
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.files.outdir import check_output
 from insertnerf_cli.model.checkpoint import checkpoint_sha256
-from insertnerf_cli.pipelines.frames import FrameWriter, RendererSpec, excluded_views, frame_workers, render_frames
+from insertnerf_cli.pipelines.frames import FrameWriter, excluded_views, render_frames
 from insertnerf_cli.pipelines.inputs import finetuned, points_cache, posed_photos, unposed_photos
+from insertnerf_cli.pipelines.processes import RendererSpec, worker_count
 from insertnerf_cli.rendering.camera_paths import (CameraPath, default_path_kind, given_path, make_path,
                                                   with_reference_bounds)
 from insertnerf_cli.rendering.path_files import PathFile, read_path_file
@@ -178,7 +179,7 @@ def _render_frames(renderer: ViewRenderer, spec: RendererSpec, path: CameraPath,
         print(f"all {len(path)} frames are already rendered in {writer.out_dir}; assembling the videos",
               file=sys.stderr)
         return 0, resumed, 0.0, clipped, 1
-    workers = frame_workers(config.workers, len(todo), config.device)
+    workers = worker_count(config.workers, len(todo), config.device)
     bar = tqdm(total=len(path), initial=resumed, unit="frame", desc="rendering", file=sys.stderr, dynamic_ncols=True)
     if workers > 1:
         bar.set_postfix_str(f"{workers} processes", refresh=False)

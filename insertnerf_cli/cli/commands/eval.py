@@ -60,12 +60,15 @@ def _table(run: EvalRun) -> list[str]:
 @click.option("--max-views", type=click.IntRange(min=1),
               help="Score at most this many held-out views, evenly spread (a quicker preview: the others stay out "
                    "of the references, so each score is the one the full run gives).")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Processes that score held-out views side by side (the scores are the same with any number, up "
+                   "to float rounding).  [default: on a CPU one per core, each with at least 3 views; on a GPU 1]")
 @model_options(views_option=_views_option)
 @device_option
 @overwrite_option
 @user_errors
 def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, max_views: int | None,
-                 views: tuple[int, ...], resolution: int, model: str, checkpoint: Path | None,
+                 workers: int | None, views: tuple[int, ...], resolution: int, model: str, checkpoint: Path | None,
                  backbone: str | None, chunk: int,
                  exact: bool, sfm_depth: bool, points_cache: Path | None, device: str, overwrite: bool) -> None:
     """Score novel-view quality on SCENE_DIR: render each held-out view (the test split, else every 8th view)
@@ -79,7 +82,7 @@ def eval_command(scene_dir: Path, json_path: Path | None, out_dir: Path | None, 
     config = EvalConfig(views=views[0] if len(views) == 1 else views, resolution=resolution or None,
                         checkpoint=chosen_weights(model, checkpoint, backbone), device=str(resolve_device(device)),
                         chunk=chunk, exact=exact, sfm_depth=sfm_depth, out_dir=out_dir, json_path=json_path,
-                        max_views=max_views, overwrite=overwrite, points_cache=points_cache)
+                        max_views=max_views, overwrite=overwrite, points_cache=points_cache, workers=workers)
     run = run_eval(scene_dir, config)
     written = [f"{what} in {path.resolve()}" for what, path in
                (("report", json_path), ("side-by-sides and report.html", out_dir)) if path is not None]
