@@ -69,8 +69,7 @@ def _job(tmp_path: Path, checkpoint: Path, frames: int):
     size = (12, 16)
     path = make_path("orbit", scene.cameras, scene.near, scene.far, frames, size)
     spec = RendererSpec(checkpoint, scene, size, 2, "cpu", None, False, False, RenderOptions())
-    far = float(path.far.max())
-    writer = FrameWriter(tmp_path / "out", 1.0, depth_scale_for(far), "png16", float(path.near.min()), far)
+    writer = FrameWriter(tmp_path / "out", 1.0, depth_scale_for(float(path.far.max())), "png16")
     return spec, path, writer
 
 

@@ -69,11 +69,10 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
     prepare_side_by_sides(out_dir, scored, counts)  # an earlier eval's outputs go first; its SfM points stay
     if config.sfm_depth:  # from the references alone: a held-out photo lends nothing to its own render
         scene = with_points(scene, [i for i in range(len(scene)) if i not in held], cache, claim)
-    renderer = ViewRenderer(model, scene, size, max(counts), config.device, config.chunk, config.exact,
-                            config.sfm_depth, config.options)
     spec = RendererSpec(weights, scene, size, max(counts), config.device, config.chunk, config.exact,
                         config.sfm_depth, config.options)
-    work = HeldOutView(size, tuple(held), tuple(counts), out_dir)
+    renderer = spec.build(model)
+    work = HeldOutView(tuple(held), tuple(counts), out_dir)
     workers = worker_count(config.workers, len(scored), config.device)
     by_view: dict[int, tuple[ViewScore, ...]] = {}
     bar = tqdm(total=len(scored), unit="view", desc="evaluating", file=sys.stderr, dynamic_ncols=True)
@@ -97,19 +96,18 @@ def run_eval(scene_dir: str | Path, config: EvalConfig) -> EvalRun:
 @dataclass(frozen=True)
 class HeldOutView:
     """Scoring one held-out view at every count (work for processes.run_side_by_side): the view rendered from its
-    ``counts`` nearest references outside ``held`` at ``size``, scored against its photo, and with an ``out_dir``
-    its side-by-sides written there."""
+    ``counts`` nearest references outside ``held`` at the renderer's size, scored against its photo, and with an
+    ``out_dir`` its side-by-sides written there."""
 
-    size: tuple[int, int]
     held: tuple[int, ...]
     counts: tuple[int, ...]
     out_dir: Path | None
 
     def run(self, renderer: ViewRenderer, index: int) -> tuple[ViewScore, ...]:
         """The ViewScore of view ``index`` at each count, in the order of ``counts``."""
-        scene, held = renderer.scene, list(self.held)
-        camera = scene.cameras.subset([index]).rescale(*self.size)
-        truth = scene.load_image(index, *self.size).astype(np.float64)
+        scene, held, size = renderer.scene, list(self.held), renderer.size
+        camera = scene.cameras.subset([index]).rescale(*size)
+        truth = scene.load_image(index, *size).astype(np.float64)
         scores: dict[int, ViewScore] = {}
         # Most references first: the smaller counts' nearest views are among them, already encoded.
         for n in reversed(self.counts):

@@ -24,14 +24,12 @@ def excluded_views(path: CameraPath, frame: int) -> list[int]:
 class FrameWriter:
     """How a rendered frame becomes its three files in ``out_dir`` (outputs.frame_paths): depth in the scene's
     units (``similarity_scale``: normalised units per scene unit), stored as ``depth_format`` with
-    ``depth_scale``, and a turbo picture of it between the path's ``near`` and ``far``."""
+    ``depth_scale``, and a turbo picture of it between the path's nearest and farthest bounds."""
 
     out_dir: Path
     similarity_scale: float
     depth_scale: float
     depth_format: str
-    near: float
-    far: float
 
     def render(self, renderer: ViewRenderer, path: CameraPath, index: int) -> int:
         """Render frame ``index`` of ``path`` and write its files; returns the depth pixels clipped (0 by
@@ -45,7 +43,7 @@ class FrameWriter:
         else:
             stored, clipped = depth_to_uint16(depth / self.similarity_scale, valid, self.depth_scale)
         write_frame(frame_paths(self.out_dir, index, self.depth_format), out.rgb.float().cpu().numpy(), stored,
-                    depth_to_turbo(depth, valid, self.near, self.far))
+                    depth_to_turbo(depth, valid, float(path.near.min()), float(path.far.max())))
         return clipped
 
     def done(self, index: int) -> bool:

@@ -16,14 +16,13 @@ from __future__ import annotations
 import multiprocessing
 import os
 import queue
-import signal
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Protocol
 
 import torch
 
-from insertnerf_cli.poses.child import die_with_parent
+from insertnerf_cli.poses.child import become_child
 from insertnerf_cli.rendering.options import RenderOptions
 from insertnerf_cli.rendering.view_renderer import ViewRenderer, load_model
 from insertnerf_cli.scenes import Scene
@@ -55,9 +54,11 @@ class RendererSpec:
     sfm_depth: bool
     options: RenderOptions
 
-    def build(self) -> ViewRenderer:
-        return ViewRenderer(load_model(self.checkpoint, self.device), self.scene, self.size, self.views, self.device,
-                            self.chunk, self.exact, self.sfm_depth, self.options)
+    def build(self, model: torch.nn.Module | None = None) -> ViewRenderer:
+        """The ViewRenderer, with ``model`` where the caller has the weights loaded already (else from the file)."""
+        model = load_model(self.checkpoint, self.device) if model is None else model
+        return ViewRenderer(model, self.scene, self.size, self.views, self.device, self.chunk, self.exact,
+                            self.sfm_depth, self.options)
 
 
 def worker_count(requested: int | None, items: int, device: str) -> int:
@@ -147,10 +148,7 @@ def _child(number: int, parent: int, spec: RendererSpec, work: Work, todo: list[
     """Child ``number``'s loop: claim items from the back of ``todo``, do each, send (item, result, number).
     Ctrl-C is the parent's to handle (it kills this process), and the kernel kills it when the ``parent``
     process dies; a failure here ends the loop quietly, and the parent does what is left."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    die_with_parent()
-    if os.getppid() != parent:  # it died before the line above took effect: no one will use this work
-        os._exit(0)
+    become_child(parent)
     torch.set_num_threads(1)
     try:
         renderer = spec.build()

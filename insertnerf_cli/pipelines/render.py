@@ -136,10 +136,9 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     claim_render_outputs(out_dir, len(path), config.depth_format, *extra)
     write_state(out_dir, state)
     size = (path.cameras.height, path.cameras.width)
-    renderer = ViewRenderer(model, scene, size, config.views, config.device, config.chunk, config.exact,
-                            config.sfm_depth, config.options)
     spec = RendererSpec(weights, scene, size, config.views, config.device, config.chunk, config.exact,
                         config.sfm_depth, config.options)
+    renderer = spec.build(model)
     path = replace(path, far=torch.tensor([renderer.far_bound(path.cameras.subset([i]), float(path.far[i]),
                                                               excluded_views(path, i)) for i in range(len(path))],
                                           dtype=path.far.dtype))
@@ -150,8 +149,7 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               **({} if path_file is None else {"path_file": str(path_file.source.resolve())}),
                               "normalization": similarity.to_json()})
-    writer = FrameWriter(out_dir, similarity.scale, scale, config.depth_format, float(path.near.min()),
-                         float(path.far.max()))
+    writer = FrameWriter(out_dir, similarity.scale, scale, config.depth_format)
     rendered, resumed, seconds, clipped, workers = _render_frames(renderer, spec, path, writer, config)
     files = [frame_paths(out_dir, i, config.depth_format) for i in range(len(path))]
     for video, sub in zip(VIDEOS, ("frame", "depth_vis")):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import ctypes
 import multiprocessing
+import os
 import signal
 import traceback
 from multiprocessing.connection import Connection
@@ -71,8 +72,7 @@ def run_in_child(call: Callable[[Send], T], on_message: Callable[[Any], None] | 
 
 
 def _child_main(call: Callable[[Send], Any], give: Connection) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides; it kills this process on Ctrl-C
-    die_with_parent()
+    become_child()
     try:
         result = call(lambda value: give.send(("message", value)))
         give.send(("result", result))
@@ -84,7 +84,17 @@ def _child_main(call: Callable[[Send], Any], give: Connection) -> None:
         give.close()
 
 
-def die_with_parent() -> None:
+def become_child(parent: int | None = None) -> None:
+    """Set this process up as a child its parent stops: Ctrl-C is ignored here (a terminal's reaches the whole
+    process group; the parent decides, and kills this process), and the kernel kills it when its parent dies.
+    With ``parent`` (the pid the parent had), a child whose parent died before that took effect exits at once."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _die_with_parent()
+    if parent is not None and os.getppid() != parent:
+        os._exit(0)
+
+
+def _die_with_parent() -> None:
     """Have the kernel kill this process when its parent dies (Linux's PR_SET_PDEATHSIG), so that a parent killed
     with SIGKILL leaves no COLMAP process writing into its removed staging folder. Elsewhere a no-op."""
     try:
