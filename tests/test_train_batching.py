@@ -218,8 +218,9 @@ def _ddp_rank(rank: int, dataset: Path, out: Path, port: int, compile: bool, pre
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("compile, precision", [(False, "fp32"), (True, "fp32"), (True, "bf16")],
-                         ids=["eager", "compiled-aggregation", "compiled-bf16"])  # the last: the fastest CPU setting
+# Compiled fp32 under DDP is left out: compile's numerics are test_train_precision's, compile under DDP is the bf16
+# case's (the fastest CPU setting), and a third pair of ranks cost the suite 20 s.
+@pytest.mark.parametrize("compile, precision", [(False, "fp32"), (True, "bf16")], ids=["eager", "compiled-bf16"])
 def test_ddp_with_gloo_on_two_processes_keeps_the_ranks_in_step(dataset, tmp_path, compile, precision):
     mp.spawn(_ddp_rank, args=(dataset, tmp_path / "run", _free_port(), compile, precision), nprocs=2, join=True)
     ranks = [torch.load(tmp_path / f"rank{r}.pt", weights_only=True) for r in range(2)]
