@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from insertnerf_cli.model import InsertNeRF, SourceViews
 from insertnerf_cli.model.occlusion import Occlusion
-from insertnerf_cli.rendering.prior_blend import (BlendOptions, background_plane, blend,
-                                        blend_at_prior, feathered, mix_share, reference_colours, smooth_fill)
+from insertnerf_cli.rendering.prior_blend import (BlendOptions, background_plane, blend, blend_at_prior,
+                                                  feathered, mix_share, patch_mean, reference_colours, smooth_fill,
+                                                  window_max)
 from insertnerf_cli.cameras.rays import rays_for_image
 from insertnerf_cli.rendering.image_renderer import ImageOutput
 from insertnerf_cli.sfm.occlusion_maps import OcclusionOptions
@@ -248,3 +250,30 @@ def test_in_an_object_capture_pixels_without_a_prior_mix_in_the_blend_at_the_bac
     plane = background_plane(prior, FAR)
     assert ((out.depth == plane) & bare).any()
     assert torch.equal(out.rgb[~bare], left_alone.rgb[~bare])  # the pixels with a prior as before
+
+
+@pytest.mark.parametrize("height, width, window", [(7, 9, 1), (7, 9, 3), (5, 4, 9), (40, 33, 81), (64, 80, 17)])
+def test_window_max_equals_max_pool_along_either_axis(height, width, window):
+    torch.manual_seed(window)
+    values = torch.randn(height, width, dtype=torch.double)
+    values[torch.rand(height, width) < 0.3] = -torch.inf  # the pixels without a splat
+    for dim, kernel in ((0, (window, 1)), (1, (1, window))):
+        pooled = F.max_pool2d(values[None, None], kernel, stride=1, padding=tuple(k // 2 for k in kernel))[0, 0]
+        brute = torch.stack([values.movedim(dim, 0)[max(0, i - window // 2):i + window // 2 + 1].amax(dim=0)
+                             for i in range(values.shape[dim])]).movedim(0, dim)
+        got = window_max(values, window, dim)
+        assert torch.equal(got, brute) and torch.equal(got, pooled)
+    with pytest.raises(ValueError):
+        window_max(values, 4, 0)
+
+
+@pytest.mark.parametrize("fraction", [0.05, 0.3, 1.0])
+def test_patch_mean_is_the_mean_over_the_square_inside_the_frame(fraction):
+    height, width = 11, 17
+    cost = torch.rand(height * width, dtype=torch.double)
+    window = max(1, round(fraction * width)) | 1
+    grid = cost.reshape(height, width)
+    expected = torch.stack([grid[max(0, r - window // 2):r + window // 2 + 1,
+                                 max(0, c - window // 2):c + window // 2 + 1].mean()
+                            for r in range(height) for c in range(width)])
+    torch.testing.assert_close(patch_mean(cost, (height, width), fraction), expected)

@@ -204,3 +204,15 @@ def test_a_looser_bound_blends_the_pixels_it_covers_and_only_those():
     between[grid.index] = False
     assert not set(rendered.tolist()) & set(torch.arange(40)[between[:40]].tolist())
     assert set(rendered.tolist()) >= set((torch.arange(40, height * width)[between[40:]]).tolist())
+
+
+@pytest.mark.parametrize("stride", [2, 3, 4])
+def test_grid_values_at_some_pixels_equal_those_of_the_whole_frame_exactly(stride):
+    height, width = 13, 10
+    grid = PixelGrid(height, width, stride, torch.device("cpu"))
+    values = torch.rand(len(grid.index), 5)
+    at = torch.randperm(height * width)[:40]
+    assert torch.equal(grid.blend(values, at), grid.blend(values)[at])
+    assert torch.equal(grid.spread(values, at), grid.spread(values)[at])
+    assert torch.equal(grid.nearest_max(values[:, 0], at), grid.nearest_max(values[:, 0])[at])
+    assert grid.blend(values, at[:0]).shape == (0, 5)

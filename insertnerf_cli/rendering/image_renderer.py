@@ -177,13 +177,13 @@ def _render_with_shortcuts(model: InsertNeRF, encoded: EncodedViews, rays: Rays,
         # a wrong fill) gets samples around each of them; guided per pixel after the blend, such a pixel's samples
         # would all sit at one of them.
         grid_weights = guide_weights(grid_weights, t.expand(len(grid_weights), -1), guide[grid.index], guide_options)
-    weights = grid.blend(grid_weights)  # [R, S_c]
+    # A pixel's coarse weights are the blend of its grid neighbours', made only for the pixels the fine pass runs on.
     live = grid.nearest_max(grid_weights.sum(dim=-1)) >= shortcuts.empty_opacity  # [R]
 
     # What an empty pixel shows: what the reference views see at infinity; the fine pass composites its pixels
     # over the same. NeRF++'s background field comes after the foreground instead (below).
     nerfpp = model.config.backbone == "nerfpp"
-    backdrop = model.background.to(weights).expand(len(rays), 3)
+    backdrop = model.background.to(grid_weights).expand(len(rays), 3)
     if nerfpp:
         backdrop = torch.zeros_like(backdrop)
     elif model.config.infinity_sample:
@@ -192,12 +192,12 @@ def _render_with_shortcuts(model: InsertNeRF, encoded: EncodedViews, rays: Rays,
     def fine(rows: Tensor) -> Callable[[Tensor], Composite]:
         def run(i: Tensor) -> Composite:
             return model.render_fine(encoded, rays[rows[i]], RaySamples(t.expand(len(i), -1),
-                                                                        edges.expand(len(i), -1)), weights[rows[i]],
-                                     backdrop[rows[i]])
+                                                                        edges.expand(len(i), -1)),
+                                     grid.blend(grid_weights, rows[i]), backdrop[rows[i]])
         return run
 
     # [R, 5]: rgb, depth, opacity; what compositing gives a ray that sees nothing until a fine pass fills it
-    out = torch.cat([backdrop, t.mean().expand(len(rays), 1), weights.new_zeros(len(rays), 1)], dim=-1)
+    out = torch.cat([backdrop, t.mean().expand(len(rays), 1), grid_weights.new_zeros(len(rays), 1)], dim=-1)
 
     def fill(rows: Tensor) -> None:
         outs = chunked(fine(rows), len(rows))
@@ -244,12 +244,13 @@ def _fine_pass_by_levels(out: Tensor, live: Tensor, size: tuple[int, int], short
         todo &= live & ~known
         if previous is not None:
             corners = out[previous.index]  # [G, 5]
-            spread = previous.spread(corners)  # [R, 5]
-            bound = shortcuts.smooth_rgb if looser is None else shortcuts.smooth_rgb * looser
-            smooth = todo & ((spread[:, [0, 1, 2, 4]].amax(dim=-1) <= bound)
-                             & (spread[:, 3] <= shortcuts.smooth_depth * depth_range.clamp(min=1e-6)))  # [R]
-            out[smooth] = previous.blend(corners)[smooth]
-            todo &= ~smooth
+            pending = todo.nonzero()[:, 0]  # [N]
+            spread = previous.spread(corners, pending)  # [N, 5]
+            bound = shortcuts.smooth_rgb if looser is None else shortcuts.smooth_rgb * looser[pending]
+            smooth = pending[(spread[:, [0, 1, 2, 4]].amax(dim=-1) <= bound)
+                             & (spread[:, 3] <= shortcuts.smooth_depth * depth_range.clamp(min=1e-6))]
+            out[smooth] = previous.blend(corners, smooth)
+            todo[smooth] = False
         fill(todo.nonzero()[:, 0])
         known[grid.index] = True
         previous = grid
@@ -268,39 +269,51 @@ class PixelGrid:
     """The pixels of an H x W frame that a pass runs on first: every ``stride``-th row and column, plus the last
     ones, so that every pixel lies between grid pixels and none is extrapolated.
 
+    Its methods take the [G, C] values at the grid pixels and give a value for each pixel ``at`` [N] (row-major
+    indices; None: all H * W, in order). Asking for the pixels a caller uses makes each the same number as asking
+    for all, at a fraction of the cost on a large frame.
+
     Attributes:
         index: [G] row-major pixel indices of the grid pixels (G = rows x columns of the grid).
     """
 
     def __init__(self, height: int, width: int, stride: int, device: torch.device) -> None:
+        self.width = width
         self.rows, self.cols = _grid_line(height, stride, device), _grid_line(width, stride, device)
         self.index = (self.rows[:, None] * width + self.cols[None, :]).reshape(-1)  # [G]
         (self.r0, self.r1, self.fr), (self.c0, self.c1, self.fc) = (_between(self.rows, height),
                                                                     _between(self.cols, width))
 
-    def blend(self, values: Tensor) -> Tensor:
-        """[G, C] values at the grid pixels -> [H * W, C] bilinear blend of the four around each pixel."""
-        corners = self._corners(values)
-        fr, fc = self.fr[:, None, None].to(values), self.fc[None, :, None].to(values)
+    def blend(self, values: Tensor, at: Tensor | None = None) -> Tensor:
+        """[N, C] the bilinear blend of the four grid pixels around each pixel."""
+        corners = self._corners(values, at)
+        if at is None:
+            fr, fc = self.fr[:, None, None], self.fc[None, :, None]  # [H, 1, 1], [1, W, 1]
+        else:
+            fr, fc = self.fr[at // self.width, None], self.fc[at % self.width, None]  # [N, 1] each
+        fr, fc = fr.to(values), fc.to(values)
         top = corners[0] * (1 - fc) + corners[1] * fc
         bottom = corners[2] * (1 - fc) + corners[3] * fc
         return (top * (1 - fr) + bottom * fr).reshape(-1, values.shape[-1])
 
-    def nearest_max(self, values: Tensor) -> Tensor:
-        """[G] values at the grid pixels -> [H * W] the largest of the four around each pixel."""
-        corners = self._corners(values[:, None])
+    def nearest_max(self, values: Tensor, at: Tensor | None = None) -> Tensor:
+        """[G] values -> [N] the largest of the four around each pixel."""
+        corners = self._corners(values[:, None], at)
         return torch.stack(corners).amax(dim=0).reshape(-1)
 
-    def spread(self, values: Tensor) -> Tensor:
-        """[G, C] values at the grid pixels -> [H * W, C] the largest minus the smallest of the four around each
-        pixel, per channel."""
-        corners = torch.stack(self._corners(values))  # [4, H, W, C]
+    def spread(self, values: Tensor, at: Tensor | None = None) -> Tensor:
+        """[N, C] the largest minus the smallest of the four grid pixels around each pixel, per channel."""
+        corners = torch.stack(self._corners(values, at))  # [4, H, W, C] or [4, N, C]
         return (corners.amax(dim=0) - corners.amin(dim=0)).reshape(-1, values.shape[-1])
 
-    def _corners(self, values: Tensor) -> list[Tensor]:
-        """The [H, W, C] values of the grid pixels above-left, above-right, below-left, below-right of each pixel."""
+    def _corners(self, values: Tensor, at: Tensor | None) -> list[Tensor]:
+        """The values of the grid pixels above-left, above-right, below-left, below-right of each pixel: [H, W, C]
+        each for all pixels, [N, C] for the pixels ``at``."""
         table = values.reshape(len(self.rows), len(self.cols), -1)
-        return [table[r][:, c] for r in (self.r0, self.r1) for c in (self.c0, self.c1)]
+        if at is None:
+            return [table[r][:, c] for r in (self.r0, self.r1) for c in (self.c0, self.c1)]
+        row, col = at // self.width, at % self.width
+        return [table[r[row], c[col]] for r in (self.r0, self.r1) for c in (self.c0, self.c1)]
 
 
 def _grid_line(size: int, stride: int, device: torch.device) -> Tensor:

@@ -113,8 +113,11 @@ def patch_mean(cost: Tensor, size: tuple[int, int], fraction: float) -> Tensor:
     """[R] per-pixel ``cost`` [R] averaged over a square patch of ``fraction`` of the long side (odd, centred;
     the pixels inside the frame only)."""
     window = max(1, round(fraction * max(size))) | 1
-    return F.avg_pool2d(cost.reshape(1, 1, *size), window, stride=1, padding=window // 2,
-                        count_include_pad=False).reshape(-1)
+    # A patch clipped by the frame is still a rectangle, so its mean is the mean over its rows of each row's mean:
+    # two 1-D pools cost 2 w per pixel, not w^2 (the same values up to float rounding).
+    rows = F.avg_pool2d(cost.reshape(1, 1, *size), (1, window), stride=1, padding=(0, window // 2),
+                        count_include_pad=False)
+    return F.avg_pool2d(rows, (window, 1), stride=1, padding=(window // 2, 0), count_include_pad=False).reshape(-1)
 
 
 def blend_at_prior(frame: ImageOutput, encoded: EncodedViews, camera: Cameras, prior: Tensor, far: float,
@@ -222,14 +225,31 @@ def smooth_fill(prior: Tensor, splatted: Tensor, options: BlendOptions = BlendOp
     depth, splats = prior.double(), splatted.to(prior.device)  # [H, W] each
 
     def largest(values: Tensor) -> Tensor:  # [H, W] the largest of ``values`` on the splats in each window
-        on_splats = torch.where(splats, values, -torch.inf)[None, None]  # [1, 1, H, W]
-        # A square's maximum is the maximum over its rows of each row's: two 1-D pools cost 2 w per pixel, not w^2.
-        rows = F.max_pool2d(on_splats, (1, window), stride=1, padding=(0, window // 2))
-        return F.max_pool2d(rows, (window, 1), stride=1, padding=(window // 2, 0))[0, 0]
+        on_splats = torch.where(splats, values, -torch.inf)  # [H, W]
+        # A square's maximum is the maximum over its rows of each row's.
+        return window_max(window_max(on_splats, window, dim=1), window, dim=0)
 
     nearest, farthest = -largest(-depth), largest(depth)
     filled = torch.isfinite(prior) & ~splats
     return filled & torch.isfinite(nearest) & (farthest <= nearest * (1.0 + options.smooth_span))
+
+
+def window_max(values: Tensor, window: int, dim: int) -> Tensor:
+    """``values`` with each entry replaced by the largest within ``window`` (odd) entries centred on it along
+    ``dim``, the window cut at the ends. Maxima over 1, 2, 4, ... entries, each the larger of two of the last, give
+    any window as the larger of two overlapping powers of two: log2 w passes instead of max_pool's w comparisons
+    per entry, with the same values."""
+    if window % 2 != 1:
+        raise ValueError(f"window_max needs an odd window, got {window}")
+    half = window // 2
+    moved = values.movedim(dim, -1)
+    pad = moved.new_full((*moved.shape[:-1], half), -torch.inf)
+    span, table = 1, torch.cat([pad, moved, pad], dim=-1)  # table[..., j]: the largest of span entries from j
+    while 2 * span <= window:
+        table = torch.maximum(table[..., :-span], table[..., span:])
+        span *= 2
+    length = moved.shape[-1]
+    return torch.maximum(table[..., :length], table[..., window - span:window - span + length]).movedim(-1, dim)
 
 
 def mix_share(at_prior: Tensor, at_render: Tensor, power: float, margin: float = 1.0) -> Tensor:
