@@ -90,3 +90,20 @@ def test_no_matches_no_points() -> None:
     xyz, views, _ = _scene()
     tracks = triangulate_tracks(views, {(0, 1): np.zeros((0, 2), dtype=np.int64)})
     assert tracks.xyz.shape == (0, 3) and [len(seen) for seen in tracks.observed] == [0, 0, 0, 0]
+
+
+def test_a_track_sheds_several_outliers_one_at_a_time_and_keeps_the_views_that_agree() -> None:
+    """Point 0 lies 30, 40 and 50 px off in three of eight views: those three leave its track, the other five stay
+    and the point is solved from them alone."""
+    rng = np.random.default_rng(2)
+    xyz = np.concatenate([rng.uniform(-1, 1, (20, 2)), rng.uniform(4, 6, (20, 1))], axis=1)
+    centres = [[0.3 * (i % 4), 0.3 * (i // 4), 0.05 * i] for i in range(8)]
+    views, where = _views(xyz, centres)
+    for view, pixels in ((2, 30), (5, 40), (7, 50)):
+        moved = views[view].rays.copy()
+        moved[where[view][0], 1] += pixels / FOCAL
+        views[view] = ViewFeatures(moved, views[view].descriptors, views[view].cam_from_world, FOCAL)
+    tracks = triangulate_tracks(views, _all_pairs(where, np.arange(len(xyz))))
+    point = int(np.argmin(np.linalg.norm(tracks.xyz - xyz[0], axis=1)))
+    np.testing.assert_allclose(tracks.xyz[point], xyz[0], atol=1e-9)
+    assert [point in tracks.observed[v] for v in range(8)] == [True, True, False, True, True, False, True, False]

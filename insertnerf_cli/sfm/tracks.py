@@ -21,9 +21,6 @@ from insertnerf_cli.sfm.epipolar import ViewFeatures
 MAX_REPROJECTION_ERROR = 4.0
 # A track whose rays meet at a smaller angle places its point too loosely in depth (COLMAP's min_tri_angle).
 MIN_TRIANGULATION_ANGLE = math.radians(1.5)
-# Rounds that each drop a track's worst observation where it lies past MAX_REPROJECTION_ERROR, before the last
-# drops every one that does.
-OUTLIER_ROUNDS = 2
 # Gauss-Newton steps on each point's reprojection error after its linear solution.
 REFINE_STEPS = 3
 
@@ -46,10 +43,11 @@ def triangulate_tracks(views: Sequence[ViewFeatures], matches: dict[tuple[int, i
     """The points of ``matches`` ((view a, view b) -> [M, 2] keypoint indices of a and b) at the poses of ``views``
     (their keypoints' rays, poses and focal lengths).
 
-    A track is a connected set of matched keypoints, never two of one view (_tracks). Each is solved, its worst
-    observation dropped while it lies farther than ``max_error`` px (or behind its camera), OUTLIER_ROUNDS times,
-    solved again, every observation still past ``max_error`` dropped, and kept if at least two views remain and
-    their rays meet at ``min_angle`` or more."""
+    A track is a connected set of matched keypoints, never two of one view (_tracks). Each is solved, then its
+    worst observation dropped and the track solved again for as long as that one lies farther than ``max_error``
+    px (or behind its camera); it is kept if at least two views remain and their rays meet at ``min_angle`` or
+    more. Dropping one at a time keeps the good observations of a track with several outliers, which a cut of
+    every observation past ``max_error`` around a point they pulled aside would lose."""
     offsets = np.cumsum([0] + [len(v.rays) for v in views])
     view_of = np.repeat(np.arange(len(views)), np.diff(offsets))
     listed = [(offsets[a] + m[:, 0], offsets[b] + m[:, 1]) for (a, b), m in matches.items() if len(m)]
@@ -66,18 +64,24 @@ def triangulate_tracks(views: Sequence[ViewFeatures], matches: dict[tuple[int, i
     focal = np.array([v.focal for v in views])[view_of[nodes]]
     keep = np.ones(len(nodes), dtype=bool)
     tracks = int(track.max()) + 1
-    for last in [False] * OUTLIER_ROUNDS + [True]:
+    xyz, error = np.full((tracks, 3), np.inf), np.full(len(nodes), np.inf)
+    changed = np.ones(tracks, dtype=bool)  # the tracks whose observations changed since they were last solved
+    while True:
         keep &= _kept_per_track(track, keep, tracks)[track] >= 2
-        xyz = _refine(_solve(rays[keep], pose[keep], track[keep], tracks), rays[keep], pose[keep], focal[keep],
-                      track[keep])
-        error = _reprojection_error(xyz[track], rays, pose, focal)
-        if last:
-            keep &= error <= max_error
-            break
-        # One outlier pulls its track's point off the others too: drop only each track's worst, then solve again.
+        xyz[changed] = _solved_points(track, keep & changed[track], changed, rays, pose, focal)
+        rows = np.flatnonzero(changed[track])  # only these observations' errors can have moved
+        error[rows] = _reprojection_error(xyz[track[rows]], rays[rows], pose[rows], focal[rows])
+        # One outlier pulls its track's point off the others too: drop only each track's worst, then solve again,
+        # until no track holds an observation past max_error (a track left with one is dropped above).
+        live = rows[keep[rows]]
         worst = np.full(tracks, -1.0)
-        np.maximum.at(worst, track[keep], error[keep])
-        keep &= ~((error == worst[track]) & (error > max_error))
+        np.maximum.at(worst, track[live], error[live])
+        dropped = live[(error[live] == worst[track[live]]) & (error[live] > max_error)]
+        if not len(dropped):
+            break
+        keep[dropped] = False
+        changed = np.zeros(tracks, dtype=bool)
+        changed[track[dropped]] = True
     good = np.isfinite(xyz).all(axis=1) & (_kept_per_track(track, keep, tracks) >= 2)
     good &= _spread(xyz, track, keep, pose, len(xyz)) >= min_angle
     keep &= good[track]
@@ -86,6 +90,16 @@ def triangulate_tracks(views: Sequence[ViewFeatures], matches: dict[tuple[int, i
     seen_view, seen_point = view_of[nodes[keep]], index[track[keep]]
     observed = tuple(np.sort(seen_point[seen_view == v]) for v in range(len(views)))
     return Tracks(xyz[good], observed)
+
+
+def _solved_points(track: np.ndarray, rows: np.ndarray, which: np.ndarray, rays: np.ndarray, pose: np.ndarray,
+                   focal: np.ndarray) -> np.ndarray:
+    """[W, 3] the refined DLT points of the W tracks ``which`` [T] (bool) marks, from their observations ``rows``
+    [n] (bool) marks."""
+    local = np.cumsum(which) - 1  # [T] a marked track's place among the marked
+    labels = local[track[rows]]
+    return _refine(_solve(rays[rows], pose[rows], labels, int(which.sum())), rays[rows], pose[rows], focal[rows],
+                   labels)
 
 
 def _empty(views: int) -> Tracks:
