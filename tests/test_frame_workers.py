@@ -19,8 +19,8 @@ from cli_fixtures import make_checkpoint, make_scene, render_command, run
 from test_interrupts import LIMIT_S, MAIN, _ctrl_c_as_in_a_terminal
 
 from insertnerf_cli.exporters.outputs import depth_scale_for
-from insertnerf_cli.pipelines.frames import FrameWriter, render_frames
-from insertnerf_cli.pipelines.processes import MAX_WORKERS, RendererSpec, worker_count
+from insertnerf_cli.pipelines.frames import FrameWriter
+from insertnerf_cli.pipelines.processes import MAX_WORKERS, RendererSpec, run_side_by_side, worker_count
 from insertnerf_cli.rendering.camera_paths import make_path
 from insertnerf_cli.rendering.options import RenderOptions
 from insertnerf_cli.rendering.view_renderer import ViewRenderer, load_model
@@ -69,7 +69,7 @@ def _job(tmp_path: Path, checkpoint: Path, frames: int):
     size = (12, 16)
     path = make_path("orbit", scene.cameras, scene.near, scene.far, frames, size)
     spec = RendererSpec(checkpoint, scene, size, 2, "cpu", None, False, False, RenderOptions())
-    writer = FrameWriter(tmp_path / "out", 1.0, depth_scale_for(float(path.far.max())), "png16")
+    writer = FrameWriter(path, tmp_path / "out", 1.0, depth_scale_for(float(path.far.max())), "png16")
     return spec, path, writer
 
 
@@ -77,19 +77,19 @@ def test_a_child_renders_from_the_back_and_a_failed_child_leaves_its_frames_to_t
     ckpt = make_checkpoint(tmp_path / "tiny.pt")
     spec, path, writer = _job(tmp_path, ckpt, 6)
     parent = _SlowRenderer(load_model(ckpt, "cpu"), spec.scene, spec.size, 2, sfm_depth=False)
-    done = list(render_frames(parent, spec, path, writer, list(range(6)), workers=2))
+    done = list(run_side_by_side(parent, spec, writer, list(range(6)), workers=2))
     assert sorted(i for i, _, _ in done) == list(range(6))
     by_child = sorted(i for i, _, who in done if who == 1)
     assert by_child and by_child == list(range(6 - len(by_child), 6))  # taken from the back
     alone = replace(writer, out_dir=tmp_path / "alone")
-    assert len(list(render_frames(spec.build(), spec, path, alone, list(range(6)), workers=1))) == 6
+    assert len(list(run_side_by_side(spec.build(), spec, alone, list(range(6)), workers=1))) == 6
     first, second = _frames(writer.out_dir), _frames(alone.out_dir)
     assert len(first) == 18 and first.keys() == second.keys()
     assert all(np.array_equal(first[k], second[k]) for k in first)  # the child's frames too
 
     broken = replace(spec, checkpoint=tmp_path / "missing.pt")  # the child cannot load its weights
     writer = replace(writer, out_dir=tmp_path / "broken")
-    done = list(render_frames(spec.build(), broken, path, writer, list(range(4)), workers=2))
+    done = list(run_side_by_side(spec.build(), broken, writer, list(range(4)), workers=2))
     assert sorted(i for i, _, _ in done) == list(range(4)) and all(who == 0 for _, _, who in done)
 
 

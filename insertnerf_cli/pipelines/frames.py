@@ -4,10 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 from insertnerf_cli.exporters.outputs import depth_to_float, depth_to_turbo, depth_to_uint16, frame_paths, write_frame
-from insertnerf_cli.pipelines.processes import RendererSpec, run_side_by_side
 from insertnerf_cli.rendering.camera_paths import CameraPath
 from insertnerf_cli.rendering.view_renderer import ViewRenderer
 
@@ -22,18 +20,21 @@ def excluded_views(path: CameraPath, frame: int) -> list[int]:
 
 @dataclass(frozen=True)
 class FrameWriter:
-    """How a rendered frame becomes its three files in ``out_dir`` (outputs.frame_paths): depth in the scene's
-    units (``similarity_scale``: normalised units per scene unit), stored as ``depth_format`` with
-    ``depth_scale``, and a turbo picture of it between the path's nearest and farthest bounds."""
+    """The frames of ``path`` as work for processes.run_side_by_side: item i renders frame i and writes its three
+    files in ``out_dir`` (outputs.frame_paths), depth in the scene's units (``similarity_scale``: normalised units
+    per scene unit), stored as ``depth_format`` with ``depth_scale``, and a turbo picture of it between the path's
+    nearest and farthest bounds."""
 
+    path: CameraPath
     out_dir: Path
     similarity_scale: float
     depth_scale: float
     depth_format: str
 
-    def render(self, renderer: ViewRenderer, path: CameraPath, index: int) -> int:
-        """Render frame ``index`` of ``path`` and write its files; returns the depth pixels clipped (0 by
-        construction of depth_scale)."""
+    def run(self, renderer: ViewRenderer, index: int) -> int:
+        """Render frame ``index`` and write its files; returns the depth pixels clipped (0 by construction of
+        depth_scale)."""
+        path = self.path
         out, _ = renderer.render(path.cameras.subset([index]), float(path.near[index]), float(path.far[index]),
                                  excluded_views(path, index))
         depth = out.depth.double().cpu().numpy()
@@ -48,21 +49,3 @@ class FrameWriter:
 
     def done(self, index: int) -> bool:
         return frame_paths(self.out_dir, index, self.depth_format).all_exist()
-
-
-@dataclass(frozen=True)
-class PathFrames:
-    """The frames of ``path`` as work for processes.run_side_by_side: item i renders and writes frame i."""
-
-    path: CameraPath
-    writer: FrameWriter
-
-    def run(self, renderer: ViewRenderer, item: int) -> int:
-        return self.writer.render(renderer, self.path, item)
-
-
-def render_frames(renderer: ViewRenderer, spec: RendererSpec, path: CameraPath, writer: FrameWriter,
-                  todo: list[int], workers: int) -> Iterator[tuple[int, int, int]]:
-    """Render and write the frames ``todo`` of ``path`` with ``workers`` processes (processes.run_side_by_side),
-    yielding (frame, clipped depth pixels, who: 0 for this process, n for child n) as each is written."""
-    return run_side_by_side(renderer, spec, PathFrames(path, writer), todo, workers)

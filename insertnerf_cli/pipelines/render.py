@@ -42,9 +42,9 @@ from insertnerf_cli.files.atomic import write_bytes
 from insertnerf_cli.files.lock import lock_output, releases_output_locks
 from insertnerf_cli.files.outdir import check_output
 from insertnerf_cli.model.checkpoint import checkpoint_sha256
-from insertnerf_cli.pipelines.frames import FrameWriter, excluded_views, render_frames
+from insertnerf_cli.pipelines.frames import FrameWriter, excluded_views
 from insertnerf_cli.pipelines.inputs import finetuned, points_cache, posed_photos, unposed_photos
-from insertnerf_cli.pipelines.processes import RendererSpec, worker_count
+from insertnerf_cli.pipelines.processes import RendererSpec, run_side_by_side, worker_count
 from insertnerf_cli.rendering.camera_paths import (CameraPath, default_path_kind, given_path, make_path,
                                                   with_reference_bounds)
 from insertnerf_cli.rendering.path_files import PathFile, read_path_file
@@ -149,8 +149,8 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
                        extra={"path": path.kind, "fps": config.fps, "scene": str(scene_dir.resolve()),
                               **({} if path_file is None else {"path_file": str(path_file.source.resolve())}),
                               "normalization": similarity.to_json()})
-    writer = FrameWriter(out_dir, similarity.scale, scale, config.depth_format)
-    rendered, resumed, seconds, clipped, workers = _render_frames(renderer, spec, path, writer, config)
+    writer = FrameWriter(path, out_dir, similarity.scale, scale, config.depth_format)
+    rendered, resumed, seconds, clipped, workers = _render_frames(renderer, spec, writer, config)
     files = [frame_paths(out_dir, i, config.depth_format) for i in range(len(path))]
     for video, sub in zip(VIDEOS, ("frame", "depth_vis")):
         write_video(out_dir / video, [getattr(f, sub) for f in files], config.fps)
@@ -167,23 +167,24 @@ def render_scene(scene_dir: str | Path, out_dir: str | Path, config: RenderConfi
     return summary
 
 
-def _render_frames(renderer: ViewRenderer, spec: RendererSpec, path: CameraPath, writer: FrameWriter,
+def _render_frames(renderer: ViewRenderer, spec: RendererSpec, writer: FrameWriter,
                    config: RenderConfig) -> tuple[int, int, float, int, int]:
-    """Render every frame whose files are missing (side by side on a CPU's cores: frames.py); returns (rendered,
-    kept, seconds spent, clipped depth pixels, processes)."""
-    todo = [i for i in range(len(path)) if not writer.done(i)]
-    resumed, clipped = len(path) - len(todo), 0
+    """Render every frame whose files are missing (side by side on a CPU's cores: processes.py); returns
+    (rendered, kept, seconds spent, clipped depth pixels, processes)."""
+    frames = len(writer.path)
+    todo = [i for i in range(frames) if not writer.done(i)]
+    resumed, clipped = frames - len(todo), 0
     if not todo:  # no bar: a finished one printed at start and again at close reads as two in a log
-        print(f"all {len(path)} frames are already rendered in {writer.out_dir}; assembling the videos",
+        print(f"all {frames} frames are already rendered in {writer.out_dir}; assembling the videos",
               file=sys.stderr)
         return 0, resumed, 0.0, clipped, 1
     workers = worker_count(config.workers, len(todo), config.device)
-    bar = tqdm(total=len(path), initial=resumed, unit="frame", desc="rendering", file=sys.stderr, dynamic_ncols=True)
+    bar = tqdm(total=frames, initial=resumed, unit="frame", desc="rendering", file=sys.stderr, dynamic_ncols=True)
     if workers > 1:
         bar.set_postfix_str(f"{workers} processes", refresh=False)
     start = time.perf_counter()
     with bar:
-        for _, n_clipped, _ in render_frames(renderer, spec, path, writer, todo, workers):
+        for _, n_clipped, _ in run_side_by_side(renderer, spec, writer, todo, workers):
             clipped += n_clipped
             bar.update(1)
     return len(todo), resumed, time.perf_counter() - start, clipped, workers

@@ -242,16 +242,16 @@ def _fine_pass_by_levels(out: Tensor, live: Tensor, size: tuple[int, int], short
         todo = torch.zeros_like(live)
         todo[grid.index] = True
         todo &= live & ~known
+        pending = todo.nonzero()[:, 0]  # [N] ascending
         if previous is not None:
             corners = out[previous.index]  # [G, 5]
-            pending = todo.nonzero()[:, 0]  # [N]
             spread = previous.spread(corners, pending)  # [N, 5]
             bound = shortcuts.smooth_rgb if looser is None else shortcuts.smooth_rgb * looser[pending]
-            smooth = pending[(spread[:, [0, 1, 2, 4]].amax(dim=-1) <= bound)
-                             & (spread[:, 3] <= shortcuts.smooth_depth * depth_range.clamp(min=1e-6))]
-            out[smooth] = previous.blend(corners, smooth)
-            todo[smooth] = False
-        fill(todo.nonzero()[:, 0])
+            smooth = ((spread[:, [0, 1, 2, 4]].amax(dim=-1) <= bound)
+                      & (spread[:, 3] <= shortcuts.smooth_depth * depth_range.clamp(min=1e-6)))  # [N]
+            out[pending[smooth]] = previous.blend(corners, pending[smooth])
+            pending = pending[~smooth]
+        fill(pending)
         known[grid.index] = True
         previous = grid
 

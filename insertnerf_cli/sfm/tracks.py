@@ -68,8 +68,9 @@ def triangulate_tracks(views: Sequence[ViewFeatures], matches: dict[tuple[int, i
     changed = np.ones(tracks, dtype=bool)  # the tracks whose observations changed since they were last solved
     while True:
         keep &= _kept_per_track(track, keep, tracks)[track] >= 2
-        xyz[changed] = _solved_points(track, keep & changed[track], changed, rays, pose, focal)
-        rows = np.flatnonzero(changed[track])  # only these observations' errors can have moved
+        in_changed = changed[track]  # [n] only these observations' points and errors can have moved
+        xyz[changed] = _solved_points(track, keep & in_changed, changed, rays, pose, focal)
+        rows = np.flatnonzero(in_changed)
         error[rows] = _reprojection_error(xyz[track[rows]], rays[rows], pose[rows], focal[rows])
         # One outlier pulls its track's point off the others too: drop only each track's worst, then solve again,
         # until no track holds an observation past max_error (a track left with one is dropped above).
